@@ -1,0 +1,132 @@
+//! PNG plots for the CLI reports (plotters on an in-memory bitmap, written atomically).
+//! Text uses the Ubuntu Light font that egui also ships, so plots look the same everywhere.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+use crate::io::{write_atomic, IoError};
+use crate::uncertainty::plane::PlaneFitRow;
+
+/// A plotting failure.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("drawing the plot failed: {0}")]
+    Draw(String),
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error("nothing to plot: {0}")]
+    Empty(String),
+}
+
+fn draw_err<E: std::fmt::Display>(e: E) -> PlotError {
+    PlotError::Draw(e.to_string())
+}
+
+static FONT: Once = Once::new();
+
+fn register_fonts() {
+    FONT.call_once(|| {
+        // Fails only on a corrupt embedded font; text would then be missing, not wrong.
+        let _ = plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            epaint_default_fonts::UBUNTU_LIGHT,
+        );
+    });
+}
+
+/// Encodes an RGB buffer as PNG and writes it atomically.
+pub fn write_png_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), PlotError> {
+    let mut bytes = Vec::new();
+    let encoder = image::codecs::png::PngEncoder::new(&mut bytes);
+    image::ImageEncoder::write_image(encoder, rgb, width, height, image::ExtendedColorType::Rgb8)
+        .map_err(draw_err)?;
+    write_atomic(path, &bytes)?;
+    Ok(())
+}
+
+/// Fig. 2 of the paper: mean plane-fitting error against α, weighted and unweighted, one panel
+/// per planar case, log-scale error axis.
+pub fn plane_fit_png(rows: &[PlaneFitRow], path: &Path) -> Result<(), PlotError> {
+    register_fonts();
+    let mut cases: Vec<&str> = Vec::new();
+    for r in rows {
+        if !cases.contains(&r.case.as_str()) {
+            cases.push(&r.case);
+        }
+    }
+    if cases.is_empty() {
+        return Err(PlotError::Empty("no plane-fit rows".into()));
+    }
+    let (w, h) = (520 * cases.len() as u32, 420u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let panels = root.split_evenly((1, cases.len()));
+        for (panel, case) in panels.iter().zip(&cases) {
+            let rs: Vec<&PlaneFitRow> = rows.iter().filter(|r| r.case == *case).collect();
+            let a_max = rs.iter().map(|r| r.alpha).fold(0.0f64, f64::max).max(1e-3);
+            let vals = rs.iter().flat_map(|r| [r.weighted_error, r.unweighted_error]);
+            let (lo, hi) = vals.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+            let lo = (lo.max(1e-9) * 0.5).log10().floor();
+            let hi = (hi.max(1e-8) * 2.0).log10().ceil();
+            let mut chart = ChartBuilder::on(panel)
+                .caption(format!("Plane fitting: {case}"), ("sans-serif", 22))
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(64)
+                .build_cartesian_2d(0.0..a_max, (10f64.powf(lo)..10f64.powf(hi)).log_scale())
+                .map_err(draw_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("α")
+                .y_desc("mean ||x_gt − x_est||")
+                .label_style(("sans-serif", 14))
+                .axis_desc_style(("sans-serif", 16))
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .draw()
+                .map_err(draw_err)?;
+            let series = [
+                ("with weights (uncertainty prior)", RGBColor(214, 39, 40), true),
+                ("without weights", RGBColor(31, 119, 180), false),
+            ];
+            for (label, color, weighted) in series {
+                let pts: Vec<(f64, f64)> = rs
+                    .iter()
+                    .map(|r| {
+                        (
+                            r.alpha,
+                            if weighted {
+                                r.weighted_error
+                            } else {
+                                r.unweighted_error
+                            },
+                        )
+                    })
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+                    .map_err(draw_err)?
+                    .label(label)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+                chart
+                    .draw_series(pts.into_iter().map(|p| Circle::new(p, 3, color.filled())))
+                    .map_err(draw_err)?;
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.3))
+                .label_font(("sans-serif", 14))
+                .draw()
+                .map_err(draw_err)?;
+        }
+        root.present().map_err(draw_err)?;
+    }
+    write_png_rgb(path, w, h, &buf)
+}

@@ -1,0 +1,182 @@
+//! The CLI contract of the foundation issue: names and JSON shapes later checks rely on, and
+//! bad input that must fail cleanly (non-zero exit, a message, never a panic).
+
+use std::process::Command;
+
+fn mlod(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_mlod"))
+        .args(args)
+        .output()
+        .expect("run mlod")
+}
+
+fn json(args: &[&str]) -> serde_json::Value {
+    let out = mlod(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("valid JSON")
+}
+
+fn matrix(v: &serde_json::Value) -> [[f64; 3]; 3] {
+    std::array::from_fn(|i| std::array::from_fn(|j| v[i][j].as_f64().unwrap()))
+}
+
+#[test]
+fn propagate_example_reproduces_the_paper_with_se3_left() {
+    let v = json(&[
+        "propagate",
+        "--example",
+        "--linearization",
+        "se3-left",
+        "--alpha",
+        "0.02",
+        "--json",
+    ]);
+    assert_eq!(v["linearization"], "se3-left");
+    assert_eq!(v["alpha"], 0.02);
+    let m = matrix(&v["extrinsic_per_alpha"]);
+    let paper = [[2.36, -1.24, -1.20], [-1.24, 2.41, -1.18], [-1.20, -1.18, 2.49]];
+    for i in 0..3 {
+        for j in 0..3 {
+            assert!(
+                (m[i][j] - paper[i][j]).abs() <= 0.01,
+                "({i},{j}) {} vs {}",
+                m[i][j],
+                paper[i][j]
+            );
+        }
+    }
+    // xi = α·extrinsic + Z, and std = sqrt(diag(xi)) ≈ 0.22 m as the paper says.
+    let xi = matrix(&v["xi"]);
+    assert!((xi[0][0] - (0.02 * m[0][0] + 0.0004)).abs() < 1e-12);
+    let std = v["std_m"].as_array().unwrap();
+    assert!((std[0].as_f64().unwrap() - 0.218).abs() < 0.002);
+}
+
+#[test]
+fn propagate_example_separate_differs() {
+    let v = json(&["propagate", "--example", "--json"]);
+    assert_eq!(v["linearization"], "separate");
+    let m = matrix(&v["extrinsic_per_alpha"]);
+    assert!((m[0][0] - 1.95).abs() < 0.01 && (m[0][1] - -1.03).abs() < 0.01);
+}
+
+#[test]
+fn propagate_point_gives_xi_and_trace() {
+    let v = json(&[
+        "propagate",
+        "--point",
+        "10,10,10",
+        "--rpy-deg",
+        "10,10,10",
+        "--translation",
+        "1,1,1",
+        "--alpha",
+        "0.1",
+        "--linearization",
+        "se3-left",
+        "--json",
+    ]);
+    let xi = matrix(&v["xi"]);
+    let tr = v["trace"].as_f64().unwrap();
+    assert!((tr - (xi[0][0] + xi[1][1] + xi[2][2])).abs() < 1e-12);
+    assert!((tr - (0.1 * (2.36 + 2.41 + 2.49) + 0.0012)).abs() < 0.01 * 0.1 * 3.0);
+    // Negative numbers in a point parse (not taken for flags).
+    json(&[
+        "propagate",
+        "--point",
+        "-10,5,-1",
+        "--rpy-deg",
+        "0,0,-90",
+        "--translation",
+        "-1,0,0",
+        "--alpha",
+        "0",
+        "--json",
+    ]);
+}
+
+#[test]
+fn bad_input_fails_cleanly() {
+    let cases: &[&[&str]] = &[
+        &["propagate", "--example", "--alpha", "-0.1"],
+        &["propagate", "--example", "--alpha", "nan"],
+        &["propagate", "--example", "--alpha", "inf"],
+        &[
+            "propagate",
+            "--point",
+            "1,2",
+            "--rpy-deg",
+            "0,0,0",
+            "--translation",
+            "0,0,0",
+        ],
+        &[
+            "propagate",
+            "--point",
+            "1,x,2",
+            "--rpy-deg",
+            "0,0,0",
+            "--translation",
+            "0,0,0",
+        ],
+        &[
+            "propagate",
+            "--point",
+            "1,2,3",
+            "--rpy-deg",
+            "0,0,NaN",
+            "--translation",
+            "0,0,0",
+        ],
+        &["propagate", "--point", "1,2,3"],
+        &["propagate", "--example", "--linearization", "left"],
+        &[
+            "propagate",
+            "--example",
+            "--prior-std",
+            "0.1,0.1,0.1;0.1,-1,0.1;0.1,0.1,0.1",
+        ],
+        &["propagate", "--example", "--prior-std", "0.1,0.1,0.1"],
+        &[
+            "plane-fit",
+            "--out",
+            "/dev/null/cannot-be-a-folder",
+            "--trials",
+            "1",
+        ],
+        &["plane-fit", "--out", "x", "--trials", "0"],
+    ];
+    for args in cases {
+        let out = mlod(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        assert!(!err.trim().is_empty(), "{args:?} gave no message");
+    }
+}
+
+#[test]
+fn plane_fit_writes_csv_and_png() {
+    let dir = std::env::temp_dir().join(format!("mlod-cli-plane-{}", std::process::id()));
+    let out = mlod(&[
+        "plane-fit",
+        "--out",
+        dir.to_str().unwrap(),
+        "--trials",
+        "2",
+        "--seed",
+        "3",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(dir.join("plane_fit.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("case,alpha,weighted_error,unweighted_error"));
+    assert_eq!(lines.count(), 22, "two cases × 11 α values");
+    let png = std::fs::read(dir.join("plane_fit.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let _ = std::fs::remove_dir_all(&dir);
+}
