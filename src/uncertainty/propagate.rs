@@ -218,45 +218,41 @@ impl TraceKernel {
 pub const PARALLEL_THRESHOLD: usize = 16_384;
 const CHUNK: usize = 4096;
 
-/// tr(Ξ) for every point of a structure-of-arrays cloud (sensor-frame x, y, z) through one
-/// extrinsic, written into `out`. All four slices must have the same length.
-pub fn trace_cloud(kernel: &TraceKernel, x: &[f32], y: &[f32], z: &[f32], out: &mut [f32]) {
+/// Applies `f(x, y, z)` to every point of a structure-of-arrays cloud, writing `out[i]`; serial
+/// below [`PARALLEL_THRESHOLD`], rayon chunks above. Works on the common length of the slices.
+fn map_points<T: Send>(
+    x: &[f32],
+    y: &[f32],
+    z: &[f32],
+    out: &mut [T],
+    f: impl Fn(f32, f32, f32) -> T + Sync,
+) {
     let n = out.len().min(x.len()).min(y.len()).min(z.len());
     let (x, y, z, out) = (&x[..n], &y[..n], &z[..n], &mut out[..n]);
-    let run = |(((o, xs), ys), zs): (((&mut [f32], &[f32]), &[f32]), &[f32])| {
-        for i in 0..o.len() {
-            o[i] = kernel.trace(xs[i], ys[i], zs[i]);
+    let run = |start: usize, o: &mut [T]| {
+        let (xs, ys, zs) = (&x[start..], &y[start..], &z[start..]);
+        for (i, v) in o.iter_mut().enumerate() {
+            *v = f(xs[i], ys[i], zs[i]);
         }
     };
     if n < PARALLEL_THRESHOLD {
-        run((((out, x), y), z));
+        run(0, out);
     } else {
         out.par_chunks_mut(CHUNK)
-            .zip(x.par_chunks(CHUNK))
-            .zip(y.par_chunks(CHUNK))
-            .zip(z.par_chunks(CHUNK))
-            .for_each(run);
+            .enumerate()
+            .for_each(|(c, o)| run(c * CHUNK, o));
     }
 }
 
-/// The six unique entries of Ξ for every point (SoA: xx, yy, zz, xy, xz, yz), into `out`.
+/// tr(Ξ) for every point of a structure-of-arrays cloud (sensor-frame x, y, z) through one
+/// extrinsic, written into `out`. Works on the common length of the four slices.
+pub fn trace_cloud(kernel: &TraceKernel, x: &[f32], y: &[f32], z: &[f32], out: &mut [f32]) {
+    map_points(x, y, z, out, |a, b, c| kernel.trace(a, b, c));
+}
+
+/// The six unique entries of Ξ for every point (xx, yy, zz, xy, xz, yz), into `out`.
 pub fn covariance_cloud(kernel: &TraceKernel, x: &[f32], y: &[f32], z: &[f32], out: &mut [[f32; 6]]) {
-    let n = out.len().min(x.len()).min(y.len()).min(z.len());
-    let (x, y, z, out) = (&x[..n], &y[..n], &z[..n], &mut out[..n]);
-    let run = |(((o, xs), ys), zs): (((&mut [[f32; 6]], &[f32]), &[f32]), &[f32])| {
-        for i in 0..o.len() {
-            o[i] = kernel.covariance6(xs[i], ys[i], zs[i]);
-        }
-    };
-    if n < PARALLEL_THRESHOLD {
-        run((((out, x), y), z));
-    } else {
-        out.par_chunks_mut(CHUNK)
-            .zip(x.par_chunks(CHUNK))
-            .zip(y.par_chunks(CHUNK))
-            .zip(z.par_chunks(CHUNK))
-            .for_each(run);
-    }
+    map_points(x, y, z, out, |a, b, c| kernel.covariance6(a, b, c));
 }
 
 /// The paper's worked example of §III-B: rpy (10°, 10°, 10°), t = (1, 1, 1) m, p = (10, 10, 10) m.
