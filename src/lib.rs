@@ -8,6 +8,7 @@
 pub mod geometry;
 pub mod io;
 pub mod lyft;
+pub mod pipeline;
 pub mod plot;
 pub mod synth;
 pub mod uncertainty;

@@ -1,1 +1,31 @@
-//! (in progress)
+//! Lyft Level 5 multi-LiDAR data in its on-disk (nuScenes-style) format: the 13 JSON tables,
+//! the dataset index, `.bin` point clouds, and the writers the simulator uses to emit the same
+//! format.
+//!
+//! ```text
+//! root/                      Dataset::open(root) or Dataset::open(root/v1.01-train)
+//!   v1.01-train/*.json       tables::Tables (serde structs in the exact on-disk form)
+//!   lidar/*.bin              pointcloud: float32 × 5 (x, y, z, intensity, ring), sensor frame
+//!   maps/*.png
+//! ```
+//!
+//! `dataset.frame(sample_token)` gives a [`Frame`]: LIDAR_TOP as the primary LiDAR (its frame is
+//! the base frame, as in the paper), LIDAR_FRONT_LEFT / LIDAR_FRONT_RIGHT as auxiliaries, each with
+//! its points in its own frame and its nominal extrinsic T^b_{l_i}, and the ground-truth boxes
+//! moved into the base frame exactly as `lyft_dataset_sdk` does. Quaternions are [w, x, y, z];
+//! annotation sizes are [w, l, h] on disk and (l, w, h) in [`crate::geometry::Box3d`]; timestamps
+//! are float microseconds. Errors are [`LyftError`], naming the file, table, token or field.
+
+pub mod dataset;
+pub mod error;
+pub mod frame;
+pub mod inspect;
+pub mod pointcloud;
+pub mod tables;
+
+pub use dataset::{resolve_inside, Dataset, LidarChannel, SampleSummary};
+pub use error::LyftError;
+pub use frame::{pyquaternion_yaw, Frame, FrameInfo, GtBox, LidarInfo, LidarScan};
+pub use inspect::{inspect, inspect_with, list, InspectBox, InspectExtrinsic, InspectLidar, InspectReport};
+pub use pointcloud::{encode_bin, parse_bin, read_bin, write_bin, LoadOptions, PointCloud, POINT_BYTES};
+pub use tables::{to_devkit_json, write_table, Record, Table, Tables};

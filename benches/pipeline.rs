@@ -1,0 +1,68 @@
+//! The CPU cost of an α change in the debugger: re-fuse a 150 000-point three-LiDAR frame and
+//! recompute every tr(Ξ) (`pipeline::fuse`). Target (GUI issue): ≤ 16 ms.
+use criterion::{criterion_group, criterion_main, Criterion};
+use mlod::geometry::{pose_from_rt, rpy_to_matrix, Pose};
+use mlod::lyft::{Frame, LidarChannel, LidarScan, PointCloud};
+use mlod::pipeline::{fuse, FuseParams};
+use mlod::uncertainty::Perturbation;
+use nalgebra::Vector3;
+use std::hint::black_box;
+
+fn cloud(n: usize) -> PointCloud {
+    let mut c = PointCloud::with_capacity(n);
+    for i in 0..n {
+        let a = i as f32 * 0.0035;
+        let r = 3.0 + (i % 700) as f32 * 0.08;
+        c.push(
+            a.cos() * r,
+            a.sin() * r,
+            (i % 40) as f32 * 0.1 - 2.0,
+            10.0,
+            (i % 40) as f32,
+        );
+    }
+    c
+}
+
+fn bench(c: &mut Criterion) {
+    let aux = |ch, rpy: [f64; 3], t: [f64; 3], n| {
+        LidarScan::in_memory(
+            ch,
+            pose_from_rt(&rpy_to_matrix(rpy[0], rpy[1], rpy[2]), &Vector3::from(t)),
+            cloud(n),
+        )
+    };
+    let frame = Frame::in_memory(
+        "bench",
+        LidarScan::in_memory(LidarChannel::Top, Pose::identity(), cloud(70_000)),
+        vec![
+            aux(
+                LidarChannel::FrontLeft,
+                [3.14, -0.03, -1.5],
+                [-2.23, -0.97, -1.34],
+                40_000,
+            ),
+            aux(
+                LidarChannel::FrontRight,
+                [3.13, 0.005, 1.6],
+                [-2.28, 0.92, -1.33],
+                40_000,
+            ),
+        ],
+        Vec::new(),
+    );
+    let mut alpha = 0.0;
+    c.bench_function("fuse_150k_alpha_change", |b| {
+        b.iter(|| {
+            alpha = if alpha >= 0.1 { 0.0 } else { alpha + 0.01 };
+            let params = FuseParams {
+                perturbation: Perturbation::new(alpha, 7).unwrap(),
+                ..Default::default()
+            };
+            black_box(fuse(black_box(&frame), &params).unwrap())
+        })
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

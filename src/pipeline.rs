@@ -1,0 +1,228 @@
+//! The one path the GUI and the CLI share: `Frame` + perturbation settings → [`FusedCloud`]
+//! (every point in the base frame through the possibly perturbed extrinsics, with its source
+//! LiDAR and tr(Ξ), paper eq. 8) — and later → detections.
+//!
+//! How it works: for each auxiliary LiDAR the perturbation (ρ, φ) is drawn from its own seeded
+//! stream (plus any manual offset) and applied as t = t̄ + ρ, R = exp(φ^)R̄ (eq. 1–2). The primary
+//! LiDAR defines the base frame, so it is never perturbed and its points carry only the
+//! measurement covariance (tr Ξ = tr Z). Ξ of an auxiliary point is linearised at the extrinsic
+//! the system uses (the applied one), with the prior Θ at `prior_alpha` — which may differ from
+//! the α that perturbed the points (a mis-specified prior). One pass per LiDAR transforms the
+//! points and evaluates the closed-form trace, over SoA slices, in parallel above 16k points.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::Pose;
+use crate::lyft::{Frame, LidarChannel};
+use crate::uncertainty::propagate::PARALLEL_THRESHOLD;
+use crate::uncertainty::{ExtrinsicNoise, Linearization, Perturbation, Prior, TraceKernel, UncertaintyError};
+
+/// Everything that decides how a frame is fused; serialisable so a session can replay it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FuseParams {
+    /// α and seed of the injected perturbation (bounded at ±σ as in §V-A-3).
+    pub perturbation: Perturbation,
+    /// The α the prior assumes when computing Ξ; `None`: the same as the perturbation's α.
+    pub prior_alpha: Option<f64>,
+    /// Θ at α = 1 (eq. 9 by default).
+    pub prior: Prior,
+    pub linearization: Linearization,
+    /// Manual offsets per auxiliary LiDAR, added to the sampled perturbation.
+    pub manual: BTreeMap<LidarChannel, ExtrinsicNoise>,
+}
+
+impl FuseParams {
+    /// The α assumed by the prior.
+    pub fn effective_prior_alpha(&self) -> f64 {
+        self.prior_alpha.unwrap_or(self.perturbation.alpha)
+    }
+
+    /// The perturbation applied to one auxiliary LiDAR: the seeded draw plus the manual offset.
+    /// The stream index is fixed per channel, so a missing LiDAR never changes another's draw.
+    pub fn noise_for(&self, channel: LidarChannel) -> Result<ExtrinsicNoise, PipelineError> {
+        if channel == LidarChannel::Top {
+            return Ok(ExtrinsicNoise::ZERO);
+        }
+        let sampled = self.perturbation.sample(&self.prior, channel as u64)?;
+        let manual = self.manual.get(&channel).copied().unwrap_or_default();
+        if !manual.is_finite() {
+            return Err(PipelineError::BadParameter(format!(
+                "manual offset of {channel} is not finite"
+            )));
+        }
+        Ok(sampled.plus(&manual))
+    }
+}
+
+/// One LiDAR's part of a fused cloud.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FusedLidar {
+    pub channel: LidarChannel,
+    /// Its points in the fused arrays.
+    pub range: Range<usize>,
+    /// The nominal extrinsic T^b_{l_i} from the dataset.
+    pub nominal: Pose,
+    /// The perturbation (ρ, φ) applied to it (zero for the primary).
+    pub noise: ExtrinsicNoise,
+    /// The extrinsic the points were fused with.
+    pub applied: Pose,
+}
+
+/// A fused point cloud in the base frame, structure-of-arrays.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct FusedCloud {
+    pub x: Vec<f32>,
+    pub y: Vec<f32>,
+    pub z: Vec<f32>,
+    pub intensity: Vec<f32>,
+    /// Index into `lidars` of each point's source LiDAR.
+    pub source: Vec<u8>,
+    /// tr(Ξ) of each point (m²).
+    pub trace: Vec<f32>,
+    pub lidars: Vec<FusedLidar>,
+}
+
+impl FusedCloud {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// |P_u| / |P|: the share of points with tr(Ξ) above `threshold` (the paper uses 0.05).
+    pub fn uncertain_fraction(&self, threshold: f32) -> f64 {
+        if self.trace.is_empty() {
+            return 0.0;
+        }
+        let n = self.trace.par_iter().filter(|t| **t > threshold).count();
+        n as f64 / self.trace.len() as f64
+    }
+
+    /// The `[min, max]` of tr(Ξ), if there are points.
+    pub fn trace_range(&self) -> Option<(f32, f32)> {
+        let first = *self.trace.first()?;
+        Some(
+            self.trace
+                .iter()
+                .fold((first, first), |(lo, hi), &t| (lo.min(t), hi.max(t))),
+        )
+    }
+}
+
+/// Errors of the pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Uncertainty(#[from] UncertaintyError),
+    #[error("bad parameter: {0}")]
+    BadParameter(String),
+    #[error("LiDAR {channel}: {what}")]
+    BadLidar { channel: LidarChannel, what: String },
+}
+
+/// Fuses a frame: all points in the base frame via the (perturbed) extrinsics, with tr(Ξ).
+pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineError> {
+    let prior_alpha = params.effective_prior_alpha();
+    let scaled = params.prior.scaled(prior_alpha)?;
+    // The primary LiDAR's extrinsic is exact (it is the base frame): only Z remains.
+    let primary_prior = Prior {
+        p: Matrix3::zeros(),
+        phi: Matrix3::zeros(),
+        z: scaled.z,
+    };
+    let total: usize = frame.lidars().map(|l| l.points.len()).sum();
+    let mut out = FusedCloud {
+        x: vec![0.0; total],
+        y: vec![0.0; total],
+        z: vec![0.0; total],
+        intensity: Vec::with_capacity(total),
+        source: Vec::with_capacity(total),
+        trace: vec![0.0; total],
+        lidars: Vec::new(),
+    };
+    let mut start = 0;
+    for (index, scan) in frame.lidars().enumerate() {
+        let channel = scan.info.channel;
+        let pts = &scan.points;
+        if !pts.is_consistent() {
+            return Err(PipelineError::BadLidar {
+                channel,
+                what: "point arrays have different lengths".into(),
+            });
+        }
+        let noise = params.noise_for(channel)?;
+        let nominal = scan.info.extrinsic;
+        let applied = noise.apply(&nominal);
+        let r = applied.rotation.to_rotation_matrix().into_inner();
+        let t = applied.translation.vector;
+        let prior = if index == 0 { &primary_prior } else { &scaled };
+        let kernel = TraceKernel::new(&r, &t, prior, params.linearization);
+        let range = start..start + pts.len();
+        transform_and_trace(
+            &r,
+            &t,
+            &kernel,
+            (&pts.x, &pts.y, &pts.z),
+            (
+                &mut out.x[range.clone()],
+                &mut out.y[range.clone()],
+                &mut out.z[range.clone()],
+                &mut out.trace[range.clone()],
+            ),
+        );
+        out.intensity.extend_from_slice(&pts.intensity);
+        out.source.extend(std::iter::repeat_n(index as u8, pts.len()));
+        out.lidars.push(FusedLidar {
+            channel,
+            range: range.clone(),
+            nominal,
+            noise,
+            applied,
+        });
+        start = range.end;
+    }
+    Ok(out)
+}
+
+type Outputs<'a> = (&'a mut [f32], &'a mut [f32], &'a mut [f32], &'a mut [f32]);
+
+/// y = R p + t and tr(Ξ) for one LiDAR's points, in one pass.
+fn transform_and_trace(
+    r: &Matrix3<f64>,
+    t: &nalgebra::Vector3<f64>,
+    kernel: &TraceKernel,
+    input: (&[f32], &[f32], &[f32]),
+    out: Outputs<'_>,
+) {
+    let m: [[f32; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)] as f32));
+    let tv = [t.x as f32, t.y as f32, t.z as f32];
+    let (px, py, pz) = input;
+    let (ox, oy, oz, otr) = out;
+    let run = |start: usize, ox: &mut [f32], oy: &mut [f32], oz: &mut [f32], otr: &mut [f32]| {
+        for i in 0..ox.len() {
+            let (a, b, c) = (px[start + i], py[start + i], pz[start + i]);
+            ox[i] = m[0][0] * a + m[0][1] * b + m[0][2] * c + tv[0];
+            oy[i] = m[1][0] * a + m[1][1] * b + m[1][2] * c + tv[1];
+            oz[i] = m[2][0] * a + m[2][1] * b + m[2][2] * c + tv[2];
+            otr[i] = kernel.trace(a, b, c);
+        }
+    };
+    const CHUNK: usize = 4096;
+    if ox.len() < PARALLEL_THRESHOLD {
+        run(0, ox, oy, oz, otr);
+    } else {
+        ox.par_chunks_mut(CHUNK)
+            .zip(oy.par_chunks_mut(CHUNK))
+            .zip(oz.par_chunks_mut(CHUNK))
+            .zip(otr.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each(|(c, (((x, y), z), tr))| run(c * CHUNK, x, y, z, tr));
+    }
+}
