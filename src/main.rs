@@ -33,6 +33,8 @@ enum Command {
     },
     /// Propagate the prior Θ(α) through an extrinsic to one point: Ξ = HΘHᵀ (paper eq. 5–8).
     Propagate(PropagateArgs),
+    /// Show a sample of a Lyft-format dataset: LiDARs, extrinsics T^b_l and boxes in the base frame.
+    Inspect(InspectArgs),
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
     PlaneFit(PlaneFitArgs),
 }
@@ -60,6 +62,25 @@ struct PropagateArgs {
     /// Your own prior instead of eq. 9: standard deviations "ρx,ρy,ρz;φx,φy,φz;ζx,ζy,ζz" (m, rad, m).
     #[arg(long)]
     prior_std: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+struct InspectArgs {
+    /// Dataset root or its version folder (e.g. v1.01-train).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Sample token (default: the first sample in scene order).
+    #[arg(long, conflicts_with = "list")]
+    sample: Option<String>,
+    /// List all samples with their LiDAR channels and box counts.
+    #[arg(long)]
+    list: bool,
+    /// Trim .bin files whose size is not a multiple of 20 bytes (with a warning) instead of failing.
+    #[arg(long)]
+    lenient: bool,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -196,6 +217,64 @@ fn plane_fit(args: PlaneFitArgs) -> Result<()> {
     Ok(())
 }
 
+fn inspect(args: InspectArgs) -> Result<()> {
+    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    if args.list {
+        let samples = mlod::lyft::list(&dataset);
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&samples)?);
+        } else {
+            for s in &samples {
+                println!(
+                    "{}  {}  {:>3} boxes  {}",
+                    s.sample_token,
+                    s.scene_name,
+                    s.num_boxes,
+                    s.lidar_channels.join(",")
+                );
+            }
+        }
+        return Ok(());
+    }
+    let opts = mlod::lyft::LoadOptions {
+        lenient: args.lenient,
+    };
+    let report = mlod::lyft::inspect_with(&dataset, args.sample.as_deref(), opts)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("sample {}", report.sample_token);
+        for l in &report.lidars {
+            let n = l.num_points.map_or("-".to_string(), |n| n.to_string());
+            let t = l.extrinsic.translation;
+            println!(
+                "  {:<18} {:>7} points  t = ({:.3}, {:.3}, {:.3})  {}",
+                l.channel, n, t[0], t[1], t[2], l.file
+            );
+        }
+        for b in &report.boxes {
+            let c = b.center;
+            println!(
+                "  {:<12} centre ({:.2}, {:.2}, {:.2})  yaw {:.3}",
+                b.category, c[0], c[1], c[2], b.yaw
+            );
+        }
+    }
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
+    if !report.is_complete() {
+        for e in &report.errors {
+            eprintln!("error: {e}");
+        }
+        bail!(
+            "{} of the sample's LiDAR files could not be read",
+            report.errors.len()
+        );
+    }
+    Ok(())
+}
+
 #[cfg(feature = "gui")]
 fn gui(dataset: Option<PathBuf>) -> Result<()> {
     let dataset = dataset.unwrap_or_else(mlod::gui::default_dataset);
@@ -225,5 +304,6 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Gui { dataset }) => gui(dataset),
         Some(Command::Propagate(a)) => propagate(a),
         Some(Command::PlaneFit(a)) => plane_fit(a),
+        Some(Command::Inspect(a)) => inspect(a),
     }
 }

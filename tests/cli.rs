@@ -180,3 +180,46 @@ fn plane_fit_writes_csv_and_png() {
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn inspect_real_fixture_prints_devkit_boxes_and_names_missing_bins() {
+    let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/lyft-real");
+    let out = mlod(&["inspect", "--dataset", fixture, "--json"]);
+    assert!(
+        !out.status.success(),
+        "the host-a101 .bin files are not in the fixture"
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    for lidar in ["lidar0", "lidar1", "lidar2"] {
+        assert!(
+            err.contains(&format!("host-a101_{lidar}_1240710385903083166.bin")),
+            "{err}"
+        );
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("the report is printed before failing");
+    let expected: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/devkit_expected/real_boxes.json"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    let boxes = v["boxes"].as_array().unwrap();
+    let want = expected["boxes"].as_array().unwrap();
+    assert_eq!(boxes.len(), want.len());
+    for (b, w) in boxes.iter().zip(want) {
+        for k in 0..3 {
+            assert!((b["center"][k].as_f64().unwrap() - w["center"][k].as_f64().unwrap()).abs() < 1e-4);
+        }
+        // size_lwh = devkit wlh with w and l swapped.
+        assert!((b["size_lwh"][0].as_f64().unwrap() - w["wlh"][1].as_f64().unwrap()).abs() < 1e-9);
+        assert!((b["yaw"].as_f64().unwrap() - w["yaw_zyx"].as_f64().unwrap()).abs() < 1e-4);
+    }
+    let list = json(&["inspect", "--dataset", fixture, "--list", "--json"]);
+    assert_eq!(list.as_array().unwrap().len(), 1);
+    let out = mlod(&["inspect", "--dataset", "/nonexistent/dataset"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/dataset"));
+}
