@@ -226,3 +226,45 @@ fn transform_and_trace(
             .for_each(|(c, (((x, y), z), tr))| run(c * CHUNK, x, y, z, tr));
     }
 }
+
+/// What the GUI's box tooltip shows about the fused points inside a box.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct BoxStats {
+    /// Fused points inside the box.
+    pub points: usize,
+    /// Their mean tr(Ξ) (m²), 0 if none.
+    pub mean_trace: f32,
+    /// Their share with tr(Ξ) above the paper's 0.05 threshold.
+    pub uncertain_fraction: f32,
+}
+
+/// Counts the fused points inside `b` (base frame) and averages their tr(Ξ).
+pub fn box_stats(cloud: &FusedCloud, b: &crate::geometry::Box3d) -> BoxStats {
+    let r = 0.5 * b.size_lwh[0].hypot(b.size_lwh[1]) as f32;
+    let (cx, cy) = (b.center[0] as f32, b.center[1] as f32);
+    let (count, sum, unc) = (0..cloud.len())
+        .into_par_iter()
+        .with_min_len(8192)
+        .filter(|&i| {
+            // Cheap circle reject first, exact oriented test after.
+            (cloud.x[i] - cx).abs() <= r
+                && (cloud.y[i] - cy).abs() <= r
+                && b.contains([cloud.x[i] as f64, cloud.y[i] as f64, cloud.z[i] as f64], 0.0)
+        })
+        .map(|i| {
+            (
+                1usize,
+                cloud.trace[i] as f64,
+                (cloud.trace[i] > crate::uncertainty::UNCERTAIN_TRACE) as usize,
+            )
+        })
+        .reduce(|| (0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+    if count == 0 {
+        return BoxStats::default();
+    }
+    BoxStats {
+        points: count,
+        mean_trace: (sum / count as f64) as f32,
+        uncertain_fraction: unc as f32 / count as f32,
+    }
+}

@@ -195,3 +195,26 @@ fn single_lidar_and_empty_clouds() {
     assert_eq!(fused.uncertain_fraction(0.05), 0.0);
     assert!(fused.trace_range().is_none());
 }
+
+#[test]
+fn box_stats_counts_points_inside() {
+    use mlod::geometry::Box3d;
+    use mlod::pipeline::box_stats;
+    let mut pts = PointCloud::default();
+    for i in 0..10 {
+        pts.push(10.0 + i as f32 * 0.1, 0.0, 0.0, 1.0, 0.0); // inside the box below
+    }
+    pts.push(20.0, 0.0, 0.0, 1.0, 0.0); // outside
+    let top = LidarScan::in_memory(LidarChannel::Top, mlod::geometry::Pose::identity(), pts);
+    let f = Frame::in_memory("b", top, Vec::new(), Vec::new());
+    let fused = fuse(&f, &params(0.0, 0)).unwrap();
+    let b = Box3d::new([10.5, 0.0, 0.0], [2.0, 1.0, 1.0], 0.3);
+    let s = box_stats(&fused, &b);
+    assert_eq!(s.points, 10);
+    assert!((s.mean_trace - 0.0012).abs() < 1e-6);
+    assert_eq!(s.uncertain_fraction, 0.0);
+    assert_eq!(
+        box_stats(&fused, &Box3d::new([-5.0, 0.0, 0.0], [1.0; 3], 0.0)).points,
+        0
+    );
+}
