@@ -11,6 +11,7 @@ pub mod io;
 pub mod lyft;
 pub mod pipeline;
 pub mod plot;
+pub mod session;
 pub mod synth;
 pub mod uncertainty;
 

@@ -1,0 +1,218 @@
+//! A serialisable debugging session: everything needed to reproduce a view exactly — the
+//! dataset, the sample, the perturbation (α, seed, manual offsets, decoupled prior α,
+//! linearisation) together with the perturbation that was actually sampled, the colouring and the
+//! camera. Saved as pretty JSON, atomically; loading checks the version and every number.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::color::ColorParams;
+use crate::io::{write_atomic, IoError};
+use crate::lyft::LidarChannel;
+use crate::pipeline::FuseParams;
+use crate::uncertainty::ExtrinsicNoise;
+
+/// The session file format version.
+pub const SESSION_VERSION: u32 = 1;
+
+/// Where the camera is (the GUI converts to and from its own camera).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CameraPose {
+    pub target: [f32; 3],
+    pub yaw: f32,
+    pub pitch: f32,
+    pub distance: f32,
+    pub fov_y: f32,
+    /// Bird's-eye (top-down orthographic) instead of perspective.
+    pub bev: bool,
+}
+
+/// One debugging session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    pub version: u32,
+    /// Dataset root (or version folder).
+    pub dataset: PathBuf,
+    /// The sample shown; `None`: the first one.
+    pub sample_token: Option<String>,
+    pub fuse: FuseParams,
+    /// The perturbation each auxiliary LiDAR got when the session was saved (for checking that
+    /// a replay draws the same numbers).
+    #[serde(default)]
+    pub sampled: BTreeMap<LidarChannel, ExtrinsicNoise>,
+    pub color: ColorParams,
+    /// Recompute the colour range from the data on every change.
+    pub auto_range: bool,
+    pub camera: Option<CameraPose>,
+    /// Per-LiDAR visibility.
+    #[serde(default)]
+    pub visible: BTreeMap<LidarChannel, bool>,
+    pub show_ground_truth: bool,
+    /// Point size in UI points.
+    pub point_size: f32,
+}
+
+impl Session {
+    pub fn new(dataset: PathBuf) -> Self {
+        Self {
+            version: SESSION_VERSION,
+            dataset,
+            sample_token: None,
+            fuse: FuseParams::default(),
+            sampled: BTreeMap::new(),
+            color: ColorParams::default(),
+            auto_range: true,
+            camera: None,
+            visible: BTreeMap::new(),
+            show_ground_truth: true,
+            point_size: 2.0,
+        }
+    }
+
+    /// Writes the session as pretty JSON, atomically.
+    pub fn save(&self, path: &Path) -> Result<(), SessionError> {
+        self.validate(path)?;
+        let json = serde_json::to_vec_pretty(self).map_err(|e| SessionError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        write_atomic(path, &json)?;
+        Ok(())
+    }
+
+    /// Reads and checks a session file.
+    pub fn load(path: &Path) -> Result<Self, SessionError> {
+        let bytes = std::fs::read(path).map_err(|e| IoError::new("cannot read session", path, e))?;
+        let s: Session = serde_json::from_slice(&bytes).map_err(|e| SessionError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        s.validate(path)?;
+        Ok(s)
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), SessionError> {
+        let bad = |field: &str, why: String| SessionError::Invalid {
+            path: path.to_path_buf(),
+            field: field.to_string(),
+            why,
+        };
+        if self.version != SESSION_VERSION {
+            return Err(bad(
+                "version",
+                format!("{} (this build reads {SESSION_VERSION})", self.version),
+            ));
+        }
+        let a = self.fuse.perturbation.alpha;
+        if !a.is_finite() || a < 0.0 {
+            return Err(bad(
+                "fuse.perturbation.alpha",
+                format!("{a} (must be finite and >= 0)"),
+            ));
+        }
+        if let Some(pa) = self.fuse.prior_alpha {
+            if !pa.is_finite() || pa < 0.0 {
+                return Err(bad("fuse.prior_alpha", format!("{pa} (must be finite and >= 0)")));
+            }
+        }
+        for (ch, n) in self.fuse.manual.iter().chain(self.sampled.iter()) {
+            if !n.is_finite() {
+                return Err(bad(
+                    "fuse.manual / sampled",
+                    format!("offset of {ch} is not finite"),
+                ));
+            }
+        }
+        let (lo, hi) = self.color.range;
+        if !(lo.is_finite() && hi.is_finite()) || hi < lo {
+            return Err(bad("color.range", format!("[{lo}, {hi}]")));
+        }
+        if !self.point_size.is_finite() || !(0.5..=50.0).contains(&self.point_size) {
+            return Err(bad(
+                "point_size",
+                format!("{} (must be in 0.5..=50)", self.point_size),
+            ));
+        }
+        if let Some(c) = &self.camera {
+            let vals = [
+                c.target[0],
+                c.target[1],
+                c.target[2],
+                c.yaw,
+                c.pitch,
+                c.distance,
+                c.fov_y,
+            ];
+            if vals.iter().any(|v| !v.is_finite()) || c.distance <= 0.0 || c.fov_y <= 0.0 {
+                return Err(bad("camera", "has a non-finite or non-positive value".into()));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Errors reading or writing a session file, naming it.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error("session {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("session {path}: field {field} is invalid: {why}")]
+    Invalid {
+        path: PathBuf,
+        field: String,
+        why: String,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::uncertainty::Perturbation;
+
+    #[test]
+    fn round_trip_and_bad_files() {
+        let dir = std::env::temp_dir().join(format!("mlod-session-{}", std::process::id()));
+        let path = dir.join("s.json");
+        let mut s = Session::new(PathBuf::from("sample_data"));
+        s.fuse.perturbation = Perturbation::new(0.04, 7).unwrap();
+        s.fuse.manual.insert(
+            LidarChannel::FrontLeft,
+            ExtrinsicNoise {
+                rho: [0.01, 0.0, 0.0],
+                phi: [0.0, 0.0, 0.002],
+            },
+        );
+        s.camera = Some(CameraPose {
+            target: [1.0, 2.0, 0.0],
+            yaw: 0.3,
+            pitch: 0.5,
+            distance: 40.0,
+            fov_y: 0.8,
+            bev: false,
+        });
+        s.save(&path).unwrap();
+        assert_eq!(Session::load(&path).unwrap(), s);
+
+        std::fs::write(&path, b"{ not json").unwrap();
+        let e = Session::load(&path).unwrap_err().to_string();
+        assert!(e.contains("s.json"), "{e}");
+        let mut bad = s.clone();
+        bad.point_size = f32::NAN;
+        assert!(bad.save(&path).is_err());
+        let text = serde_json::to_string(&s)
+            .unwrap()
+            .replace("\"alpha\":0.04", "\"alpha\":-1.0");
+        std::fs::write(&path, text).unwrap();
+        let e = Session::load(&path).unwrap_err().to_string();
+        assert!(e.contains("alpha"), "{e}");
+        assert!(Session::load(&dir.join("missing.json"))
+            .unwrap_err()
+            .to_string()
+            .contains("missing.json"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
