@@ -1,6 +1,7 @@
 //! The CPU cost of an α change in the debugger: re-fuse a 150 000-point three-LiDAR frame and
 //! recompute every tr(Ξ) (`pipeline::fuse`). Target (GUI issue): ≤ 16 ms.
 use criterion::{criterion_group, criterion_main, Criterion};
+use mlod::color::{colorize, histogram, ColorParams};
 use mlod::geometry::{pose_from_rt, rpy_to_matrix, Pose};
 use mlod::lyft::{Frame, LidarChannel, LidarScan, PointCloud};
 use mlod::pipeline::{fuse, FuseParams};
@@ -38,7 +39,7 @@ fn bench(c: &mut Criterion) {
         vec![
             aux(
                 LidarChannel::FrontLeft,
-                [3.14, -0.03, -1.5],
+                [3.1, -0.03, -1.5],
                 [-2.23, -0.97, -1.34],
                 40_000,
             ),
@@ -60,6 +61,21 @@ fn bench(c: &mut Criterion) {
                 ..Default::default()
             };
             black_box(fuse(black_box(&frame), &params).unwrap())
+        })
+    });
+    // What the GUI does per α tick: fuse, recolour by tr(Ξ), histogram and |P_u|/|P|.
+    let color = ColorParams::default();
+    c.bench_function("alpha_change_fuse_color_histogram_150k", |b| {
+        b.iter(|| {
+            alpha = if alpha >= 0.1 { 0.0 } else { alpha + 0.01 };
+            let params = FuseParams {
+                perturbation: Perturbation::new(alpha, 7).unwrap(),
+                ..Default::default()
+            };
+            let cloud = fuse(black_box(&frame), &params).unwrap();
+            let colors = colorize(&cloud, &color);
+            let hist = histogram(&cloud.trace, color.range, color.scale, 64);
+            black_box((colors, hist, cloud.uncertain_fraction(0.05)))
         })
     });
 }

@@ -30,9 +30,29 @@ enum Command {
         /// A Lyft-format dataset (root or version folder); default: the embedded sample_data/.
         #[arg(long)]
         dataset: Option<PathBuf>,
+        /// A saved session (reproduces its view exactly; its dataset unless --dataset is given).
+        #[arg(long)]
+        session: Option<PathBuf>,
+        /// Measure: repaint continuously for N frames, print frame times, exit.
+        #[arg(long)]
+        measure_frames: Option<usize>,
+    },
+    /// Render the viewport headlessly to a PNG (as File > Export viewport PNG does).
+    Screenshot {
+        #[arg(long)]
+        dataset: Option<PathBuf>,
+        #[arg(long)]
+        session: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        /// WIDTHxHEIGHT in pixels.
+        #[arg(long, default_value = "1280x800")]
+        size: String,
     },
     /// Propagate the prior Θ(α) through an extrinsic to one point: Ξ = HΘHᵀ (paper eq. 5–8).
     Propagate(PropagateArgs),
+    /// Generate a Lyft-format multi-LiDAR dataset with the ray-cast simulator.
+    Synth(SynthArgs),
     /// Show a sample of a Lyft-format dataset: LiDARs, extrinsics T^b_l and boxes in the base frame.
     Inspect(InspectArgs),
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
@@ -65,6 +85,25 @@ struct PropagateArgs {
     /// Print JSON.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(clap::Args)]
+struct SynthArgs {
+    /// Output folder (the dataset root: v1.01-train/, lidar/, maps/).
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of scenes.
+    #[arg(long, default_value_t = 1)]
+    scenes: usize,
+    /// Key frames per scene (0.2 s apart).
+    #[arg(long, default_value_t = 10)]
+    samples_per_scene: usize,
+    /// Seed of everything generated (layout, motion, noise, tokens).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Show a progress bar.
+    #[arg(long)]
+    progress: bool,
 }
 
 #[derive(clap::Args)]
@@ -217,6 +256,46 @@ fn plane_fit(args: PlaneFitArgs) -> Result<()> {
     Ok(())
 }
 
+fn synth(args: SynthArgs) -> Result<()> {
+    let cfg = mlod::synth::SynthConfig {
+        seed: args.seed,
+        scenes: args.scenes,
+        samples_per_scene: args.samples_per_scene,
+        ..Default::default()
+    };
+    let bar = args.progress.then(|| {
+        let bar = indicatif::ProgressBar::new((args.scenes * args.samples_per_scene) as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:40.cyan/blue} {pos}/{len} samples  {elapsed_precise} (eta {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
+    let start = std::time::Instant::now();
+    let summary = mlod::synth::generate(&cfg, &args.out, |done, total| {
+        if let Some(bar) = &bar {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+    })?;
+    if let Some(bar) = bar {
+        bar.finish();
+    }
+    eprintln!(
+        "wrote {} samples ({} scenes, {} annotations, {} points, {:.1} MB) to {} in {:.1} s",
+        summary.samples,
+        summary.scenes,
+        summary.annotations,
+        summary.points,
+        summary.bytes as f64 / 1e6,
+        args.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 fn inspect(args: InspectArgs) -> Result<()> {
     let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
     if args.list {
@@ -276,14 +355,52 @@ fn inspect(args: InspectArgs) -> Result<()> {
 }
 
 #[cfg(feature = "gui")]
-fn gui(dataset: Option<PathBuf>) -> Result<()> {
-    let dataset = dataset.unwrap_or_else(mlod::gui::default_dataset);
-    mlod::gui::run(dataset).context("the debugger window failed")
+fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlod::gui::AppOptions> {
+    let session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
+    let dataset = dataset
+        .or_else(|| session.as_ref().map(|s| s.dataset.clone()))
+        .unwrap_or_else(mlod::gui::default_dataset);
+    let session = session.map(|mut s| {
+        s.dataset = dataset.clone();
+        s
+    });
+    Ok(mlod::gui::AppOptions {
+        dataset,
+        session,
+        synchronous: false,
+        measure_frames: None,
+    })
+}
+
+#[cfg(feature = "gui")]
+fn gui(dataset: Option<PathBuf>, session: Option<PathBuf>, measure_frames: Option<usize>) -> Result<()> {
+    let mut options = app_options(dataset, session)?;
+    options.measure_frames = measure_frames.filter(|n| *n > 0);
+    mlod::gui::run(options).context("the debugger window failed")
+}
+
+#[cfg(feature = "gui")]
+fn screenshot(dataset: Option<PathBuf>, session: Option<PathBuf>, out: PathBuf, size: &str) -> Result<()> {
+    let (w, h) = size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)))
+        .filter(|(w, h)| (16..=8192).contains(w) && (16..=8192).contains(h))
+        .with_context(|| format!("--size must be WIDTHxHEIGHT with sides in 16..=8192, got '{size}'"))?;
+    let options = app_options(dataset, session)?;
+    let img = mlod::gui::screenshot(options, (w, h))?;
+    mlod::gui::write_png(&out, &img)?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
 }
 
 #[cfg(not(feature = "gui"))]
-fn gui(_dataset: Option<PathBuf>) -> Result<()> {
+fn gui(_dataset: Option<PathBuf>, _session: Option<PathBuf>, _measure: Option<usize>) -> Result<()> {
     bail!("this build has no GUI (built without the `gui` feature); use a subcommand, see --help")
+}
+
+#[cfg(not(feature = "gui"))]
+fn screenshot(_: Option<PathBuf>, _: Option<PathBuf>, _: PathBuf, _: &str) -> Result<()> {
+    bail!("this build has no GUI (built without the `gui` feature)")
 }
 
 fn main() -> std::process::ExitCode {
@@ -300,10 +417,21 @@ fn main() -> std::process::ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => gui(None),
-        Some(Command::Gui { dataset }) => gui(dataset),
+        None => gui(None, None, None),
+        Some(Command::Gui {
+            dataset,
+            session,
+            measure_frames,
+        }) => gui(dataset, session, measure_frames),
+        Some(Command::Screenshot {
+            dataset,
+            session,
+            out,
+            size,
+        }) => screenshot(dataset, session, out, &size),
         Some(Command::Propagate(a)) => propagate(a),
         Some(Command::PlaneFit(a)) => plane_fit(a),
         Some(Command::Inspect(a)) => inspect(a),
+        Some(Command::Synth(a)) => synth(a),
     }
 }

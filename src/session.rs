@@ -63,7 +63,7 @@ impl Session {
             fuse: FuseParams::default(),
             sampled: BTreeMap::new(),
             color: ColorParams::default(),
-            auto_range: true,
+            auto_range: false,
             camera: None,
             visible: BTreeMap::new(),
             show_ground_truth: true,

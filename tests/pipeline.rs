@@ -29,7 +29,7 @@ fn frame(with_left: bool) -> Frame {
         cloud(3000, 0.0),
     );
     let left_pose = pose_from_rt(
-        &rpy_to_matrix(3.14, -0.03, -1.5),
+        &rpy_to_matrix(3.1, -0.03, -1.5),
         &Vector3::new(-2.23, -0.97, -1.34),
     );
     let right_pose = pose_from_rt(

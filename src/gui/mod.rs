@@ -1,15 +1,20 @@
-//! The desktop debugger (eframe + egui on wgpu). This first window is a placeholder that already
-//! runs through the library: it shows the paper's worked example of §III-B and lets the user drag
-//! α and switch the linearisation. The 3D viewport, sample browser and perturbation panel come
-//! with the GUI issue; the GUI never computes geometry itself, it calls `crate::uncertainty`.
+//! The desktop debugger (eframe + egui on wgpu): a sample browser, the 3D viewport with points
+//! coloured by source LiDAR, height, intensity or tr(Ξ), the perturbation panel, ground-truth
+//! boxes, sessions and screenshots. The GUI holds state and draws; every number comes from the
+//! library (`pipeline`, `color`, `session`). `viewport` is a renderer that knows nothing of the
+//! panels.
+
+pub mod app;
+mod jobs;
+mod panels;
+pub mod viewport;
 
 use std::path::{Path, PathBuf};
 
 use eframe::egui;
-use nalgebra::Matrix3;
+use egui_wgpu::wgpu;
 
-use crate::uncertainty::propagate::{covariance, worked_example};
-use crate::uncertainty::{Linearization, Prior};
+pub use app::{AppOptions, MlodApp};
 
 /// The window title (screenshots find the window by it).
 pub const TITLE: &str = "MLOD debugger";
@@ -19,99 +24,80 @@ pub fn default_dataset() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data")
 }
 
-/// The placeholder application state.
-pub struct MlodApp {
-    dataset: PathBuf,
-    alpha: f64,
-    linearization: Linearization,
+/// Errors of the GUI entry points.
+#[derive(Debug, thiserror::Error)]
+pub enum GuiError {
+    #[error(
+        "could not open the window: {0}. Without a GPU install software Vulkan \
+         (`apt-get install mesa-vulkan-drivers libvulkan1`) or try WGPU_BACKEND=gl; \
+         without a display use Xvfb (`xvfb-run -a mlod`)"
+    )]
+    Window(#[from] eframe::Error),
+    #[error(transparent)]
+    Viewport(#[from] viewport::ViewportError),
+    #[error("cannot write {path}: {message}")]
+    Write { path: PathBuf, message: String },
+    #[error("{0}")]
+    Load(String),
 }
 
-impl MlodApp {
-    pub fn new(dataset: PathBuf) -> Self {
-        Self {
-            dataset,
-            alpha: 0.02,
-            linearization: Linearization::Separate,
-        }
-    }
-
-    fn worked_example_xi(&self) -> Option<Matrix3<f64>> {
-        let (r, t, p) = worked_example();
-        let prior = Prior::paper().scaled(self.alpha).ok()?;
-        Some(covariance(&r, &t, &p, &prior, self.linearization))
-    }
-}
-
-impl eframe::App for MlodApp {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
-        egui::Panel::top("top_bar").show(ui, |ui| {
-            ui.horizontal(|ui| {
-                ui.heading(TITLE);
-                ui.separator();
-                ui.label(format!("dataset: {}", self.dataset.display()));
-            });
-        });
-        egui::CentralPanel::default().show(ui, |ui| {
-            ui.add_space(8.0);
-            ui.label(
-                "Multi-LiDAR 3D object detection under extrinsic perturbation (MLOD). \
-                 Coming next: the 3D viewport of a Lyft sample with points coloured by tr(Ξ), \
-                 the perturbation panel, detectors, the refiner and ground-truth boxes.",
-            );
-            ui.add_space(12.0);
-            ui.group(|ui| {
-                ui.strong("Uncertainty propagation — paper §III-B worked example");
-                ui.label("extrinsic rpy (10°, 10°, 10°), t = (1, 1, 1) m, point p = (10, 10, 10) m");
-                ui.add(
-                    egui::Slider::new(&mut self.alpha, 0.0..=0.1)
-                        .text("α")
-                        .step_by(0.001),
-                );
-                ui.horizontal(|ui| {
-                    for lin in Linearization::ALL {
-                        ui.radio_value(&mut self.linearization, lin, lin.name());
-                    }
-                });
-                if let Some(xi) = self.worked_example_xi() {
-                    egui::Grid::new("xi").striped(true).show(ui, |ui| {
-                        for i in 0..3 {
-                            for j in 0..3 {
-                                ui.monospace(format!("{:>8.4}", xi[(i, j)]));
-                            }
-                            ui.end_row();
-                        }
-                    });
-                    let std: Vec<String> = (0..3).map(|i| format!("{:.3}", xi[(i, i)].sqrt())).collect();
-                    ui.label(format!(
-                        "tr(Ξ) = {:.4} m²   std = [{}] m",
-                        xi.trace(),
-                        std.join(", ")
-                    ));
-                }
-            });
-        });
-    }
-}
-
-/// Opens the window. Errors (no GPU adapter, no display) come back instead of panicking.
-pub fn run(dataset: PathBuf) -> Result<(), eframe::Error> {
-    let options = eframe::NativeOptions {
+/// Opens the window.
+pub fn run(options: AppOptions) -> Result<(), GuiError> {
+    let mut native = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default()
             .with_title(TITLE)
-            .with_inner_size([1280.0, 800.0]),
+            .with_inner_size([1280.0, 800.0])
+            .with_drag_and_drop(true),
         ..Default::default()
     };
-    let result = eframe::run_native(
-        TITLE,
-        options,
-        Box::new(move |_cc| Ok(Box::new(MlodApp::new(dataset)))),
-    );
-    if let Err(e) = &result {
-        eprintln!(
-            "mlod: could not open the window ({e}).\n  On Linux without a GPU install software Vulkan: \
-             `apt-get install mesa-vulkan-drivers libvulkan1`, or try WGPU_BACKEND=gl; \
-             without a display use Xvfb (`xvfb-run -a mlod`)."
-        );
+    if options.measure_frames.is_some() {
+        native.wgpu_options.surface.present_mode = wgpu::PresentMode::AutoNoVsync;
     }
-    result
+    eframe::run_native(
+        TITLE,
+        native,
+        Box::new(move |cc| Ok(Box::new(MlodApp::new(cc, options)))),
+    )?;
+    Ok(())
+}
+
+/// Writes an RGBA image as PNG, atomically.
+pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
+    let mut bytes = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new(&mut bytes);
+    image::ImageEncoder::write_image(
+        enc,
+        img.as_raw(),
+        img.width(),
+        img.height(),
+        image::ExtendedColorType::Rgba8,
+    )
+    .map_err(|e| GuiError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    crate::io::write_atomic(path, &bytes).map_err(|e| GuiError::Write {
+        path: path.to_path_buf(),
+        message: format!("{e:#}"),
+    })
+}
+
+/// Renders the viewport of a dataset/session headlessly (what File > Export viewport PNG writes).
+pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaImage, GuiError> {
+    let app = MlodApp::headless(
+        AppOptions {
+            synchronous: true,
+            ..options
+        },
+        None,
+    );
+    if let Some(t) = app.toasts.iter().find(|t| t.error) {
+        return Err(GuiError::Load(t.text.clone()));
+    }
+    if app.fused.is_none() {
+        return Err(GuiError::Load("no sample could be loaded".into()));
+    }
+    let gpu = viewport::HeadlessGpu::new()?;
+    let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
+    Ok(renderer.render(&app.scene, &app.view, size)?)
 }

@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Regenerates screenshots/*.png from the real window under Xvfb (software rendering), one per
+# committed session file. Sessions are written by:
+#   cargo test --test gui_app -- --ignored write_screenshot_sessions
+# Needs: xvfb, xauth, imagemagick (import), mesa-vulkan-drivers.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
+for s in screenshots/*.session.json; do
+  name=$(basename "$s" .session.json)
+  xvfb-run -a -s "-screen 0 1280x800x24" sh -c "
+    target/release/mlod gui --session '$s' >/dev/null 2>&1 &
+    pid=\$!
+    sleep 6
+    import -window root 'screenshots/$name.png'
+    kill \$pid"
+  echo "wrote screenshots/$name.png"
+done

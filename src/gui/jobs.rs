@@ -1,0 +1,97 @@
+//! Background work for the GUI: opening a dataset and loading a frame run on worker threads and
+//! report back through a channel that the UI drains once per frame, so the window never blocks on
+//! disk. Results carry the request they answer; stale ones (the user already moved on) are
+//! dropped by the app. `synchronous` mode runs jobs inline (tests, headless screenshots).
+
+use std::path::PathBuf;
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
+
+use crate::lyft::{Dataset, Frame, SampleSummary};
+
+/// A finished job.
+pub enum JobResult {
+    Dataset {
+        path: PathBuf,
+        result: Result<(Arc<Dataset>, Vec<SampleSummary>), String>,
+    },
+    Frame {
+        token: String,
+        result: Result<Arc<Frame>, String>,
+        millis: f64,
+    },
+}
+
+/// Spawns jobs and collects their results.
+pub struct Jobs {
+    tx: Sender<JobResult>,
+    rx: Receiver<JobResult>,
+    repaint: Option<egui::Context>,
+    synchronous: bool,
+    running: usize,
+}
+
+impl Jobs {
+    pub fn new(repaint: Option<egui::Context>, synchronous: bool) -> Self {
+        let (tx, rx) = channel();
+        Self {
+            tx,
+            rx,
+            repaint,
+            synchronous,
+            running: 0,
+        }
+    }
+
+    /// Jobs started and not yet collected.
+    pub fn running(&self) -> usize {
+        self.running
+    }
+
+    fn spawn(&mut self, work: impl FnOnce() -> JobResult + Send + 'static) {
+        self.running += 1;
+        if self.synchronous {
+            let _ = self.tx.send(work());
+            return;
+        }
+        let tx = self.tx.clone();
+        let ctx = self.repaint.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(work());
+            if let Some(ctx) = ctx {
+                ctx.request_repaint();
+            }
+        });
+    }
+
+    pub fn open_dataset(&mut self, path: PathBuf) {
+        self.spawn(move || {
+            let result = Dataset::open(&path)
+                .map(|d| {
+                    let samples = d.samples();
+                    (Arc::new(d), samples)
+                })
+                .map_err(|e| e.to_string());
+            JobResult::Dataset { path, result }
+        });
+    }
+
+    pub fn load_frame(&mut self, dataset: Arc<Dataset>, token: String) {
+        self.spawn(move || {
+            let start = std::time::Instant::now();
+            let result = dataset.frame(&token).map(Arc::new).map_err(|e| e.to_string());
+            JobResult::Frame {
+                token,
+                result,
+                millis: start.elapsed().as_secs_f64() * 1e3,
+            }
+        });
+    }
+
+    /// Results that arrived since the last call.
+    pub fn poll(&mut self) -> Vec<JobResult> {
+        let out: Vec<JobResult> = self.rx.try_iter().collect();
+        self.running = self.running.saturating_sub(out.len());
+        out
+    }
+}
