@@ -162,8 +162,16 @@ pub fn scalars(cloud: &FusedCloud, mode: ColorMode) -> &[f32] {
     }
 }
 
+/// [`turbo`] sampled at 1024 steps: the per-point path looks colours up instead of evaluating
+/// three polynomials (the steps are finer than 8-bit colour can show).
+fn turbo_lut() -> &'static [Rgba; 1024] {
+    static LUT: std::sync::OnceLock<[Rgba; 1024]> = std::sync::OnceLock::new();
+    LUT.get_or_init(|| std::array::from_fn(|i| turbo(i as f32 / 1023.0)))
+}
+
 /// The colour of every point.
 pub fn colorize(cloud: &FusedCloud, params: &ColorParams) -> Vec<Rgba> {
+    let lut = turbo_lut();
     let n = cloud.len();
     let mut out = vec![[0u8; 4]; n];
     let values = scalars(cloud, params.mode);
@@ -176,11 +184,10 @@ pub fn colorize(cloud: &FusedCloud, params: &ColorParams) -> Vec<Rgba> {
                     let s = cloud.source.get(k).copied().unwrap_or(0) as usize;
                     LIDAR_COLORS.get(s).copied().unwrap_or([200, 200, 200, 255])
                 }
-                _ => turbo(normalize(
-                    values.get(k).copied().unwrap_or(0.0),
-                    params.range,
-                    params.scale,
-                )),
+                _ => {
+                    let t = normalize(values.get(k).copied().unwrap_or(0.0), params.range, params.scale);
+                    lut[(t * 1023.0).round() as usize]
+                }
             };
             if let (Some(th), Some(t)) = (params.highlight_above, cloud.trace.get(k)) {
                 if *t > th {
@@ -328,6 +335,21 @@ mod tests {
         assert_eq!(t.len(), 4);
         assert!((t[0] - 1e-3).abs() < 1e-9 && (t[3] - 1.0).abs() < 1e-6);
         assert!(ticks((0.01, 0.2), Scale::Log).len() >= 4);
+    }
+
+    #[test]
+    fn lookup_table_matches_the_colormap() {
+        let lut = turbo_lut();
+        for i in [0usize, 1, 511, 1023] {
+            assert_eq!(lut[i], turbo(i as f32 / 1023.0));
+        }
+        // Neighbouring entries differ by at most a few levels: the table is fine enough.
+        let max_step = lut
+            .windows(2)
+            .flat_map(|w| (0..3).map(move |c| w[0][c].abs_diff(w[1][c])))
+            .max()
+            .unwrap();
+        assert!(max_step <= 4, "{max_step}");
     }
 
     #[test]

@@ -166,9 +166,6 @@ impl MlodApp {
 
     pub(crate) fn toast(&mut self, now: f64, text: impl Into<String>, error: bool) {
         let text = text.into();
-        if error {
-            eprintln!("mlod: {text}");
-        }
         self.toasts.push(Toast {
             text,
             error,
