@@ -53,6 +53,9 @@ enum Command {
     Propagate(PropagateArgs),
     /// Generate a Lyft-format multi-LiDAR dataset with the ray-cast simulator.
     Synth(SynthArgs),
+    /// Fuse a sample under a perturbation and print what the debugger shows: the applied ρ, φ and
+    /// extrinsics, tr(Ξ) range, |P_u|/|P|, the tr(Ξ) histogram and per-box statistics.
+    Fuse(FuseArgs),
     /// Show a sample of a Lyft-format dataset: LiDARs, extrinsics T^b_l and boxes in the base frame.
     Inspect(InspectArgs),
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
@@ -104,6 +107,33 @@ struct SynthArgs {
     /// Show a progress bar.
     #[arg(long)]
     progress: bool,
+}
+
+#[derive(clap::Args)]
+struct FuseArgs {
+    /// Dataset root or its version folder.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Sample token (default: the first sample in scene order).
+    #[arg(long)]
+    sample: Option<String>,
+    /// α of the injected perturbation.
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha, allow_hyphen_values = true)]
+    alpha: f64,
+    /// Seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The α the prior assumes for Ξ (default: --alpha).
+    #[arg(long, value_parser = parse_alpha, allow_hyphen_values = true)]
+    prior_alpha: Option<f64>,
+    #[arg(long, default_value = "separate")]
+    linearization: Linearization,
+    /// Number of log-spaced tr(Ξ) histogram bins between 1e-3 and 1 m².
+    #[arg(long, default_value_t = 64)]
+    bins: usize,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -296,6 +326,105 @@ fn synth(args: SynthArgs) -> Result<()> {
     Ok(())
 }
 
+fn fuse_cmd(args: FuseArgs) -> Result<()> {
+    use mlod::color::{histogram, ColorParams};
+    use mlod::pipeline::{box_stats, fuse, FuseParams};
+    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    let token = match &args.sample {
+        Some(t) => t.clone(),
+        None => dataset
+            .first_sample_token()
+            .context("the dataset has no samples")?
+            .to_string(),
+    };
+    let frame = dataset.frame(&token)?;
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
+        prior_alpha: args.prior_alpha,
+        linearization: args.linearization,
+        ..Default::default()
+    };
+    let cloud = fuse(&frame, &params)?;
+    let range = ColorParams::default().range;
+    let hist = histogram(
+        &cloud.trace,
+        range,
+        mlod::color::Scale::Log,
+        args.bins.clamp(1, 4096),
+    );
+    let (lo, hi) = cloud.trace_range().unwrap_or((0.0, 0.0));
+    let lidars: Vec<serde_json::Value> = cloud
+        .lidars
+        .iter()
+        .map(|l| {
+            let q = l.applied.rotation;
+            serde_json::json!({
+                "channel": l.channel.as_str(),
+                "num_points": l.range.len(),
+                "rho_m": l.noise.rho,
+                "phi_rad": l.noise.phi,
+                "applied_extrinsic": {
+                    "translation": l.applied.translation.vector.as_slice(),
+                    "rotation_wxyz": mlod::geometry::quat_to_wxyz(&q),
+                },
+            })
+        })
+        .collect();
+    let boxes: Vec<serde_json::Value> = frame
+        .boxes
+        .iter()
+        .map(|b| {
+            let s = box_stats(&cloud, &b.box3d);
+            serde_json::json!({
+                "category": b.category, "center": b.box3d.center, "distance_m": b.box3d.bev_range(),
+                "points_inside": s.points, "mean_trace": s.mean_trace, "uncertain_fraction": s.uncertain_fraction,
+            })
+        })
+        .collect();
+    let report = serde_json::json!({
+        "sample_token": token,
+        "alpha": args.alpha,
+        "prior_alpha": params.effective_prior_alpha(),
+        "seed": args.seed,
+        "linearization": args.linearization.name(),
+        "num_points": cloud.len(),
+        "trace_min": lo,
+        "trace_max": hi,
+        "uncertain_threshold": mlod::uncertainty::UNCERTAIN_TRACE,
+        "uncertain_fraction": cloud.uncertain_fraction(mlod::uncertainty::UNCERTAIN_TRACE),
+        "histogram": { "scale": "log", "range": [range.0, range.1], "counts": hist },
+        "lidars": lidars,
+        "boxes": boxes,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "sample {}  alpha {}  {} points  tr(Xi) {:.4}..{:.4} m^2  uncertain {:.1} %",
+            token,
+            args.alpha,
+            cloud.len(),
+            lo,
+            hi,
+            100.0 * cloud.uncertain_fraction(mlod::uncertainty::UNCERTAIN_TRACE)
+        );
+        for l in &cloud.lidars {
+            let (r, p) = (l.noise.rho, l.noise.phi);
+            println!(
+                "  {:<18} rho = ({:+.3}, {:+.3}, {:+.3}) m  phi = ({:+.4}, {:+.4}, {:+.4}) rad",
+                l.channel.as_str(),
+                r[0],
+                r[1],
+                r[2],
+                p[0],
+                p[1],
+                p[2]
+            );
+        }
+    }
+    Ok(())
+}
+
 fn inspect(args: InspectArgs) -> Result<()> {
     let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
     if args.list {
@@ -432,6 +561,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Propagate(a)) => propagate(a),
         Some(Command::PlaneFit(a)) => plane_fit(a),
         Some(Command::Inspect(a)) => inspect(a),
+        Some(Command::Fuse(a)) => fuse_cmd(a),
         Some(Command::Synth(a)) => synth(a),
     }
 }

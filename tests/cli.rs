@@ -223,3 +223,50 @@ fn inspect_real_fixture_prints_devkit_boxes_and_names_missing_bins() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/dataset"));
 }
+
+#[test]
+fn fuse_reports_what_the_gui_shows() {
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let v = json(&[
+        "fuse",
+        "--dataset",
+        data,
+        "--alpha",
+        "0.04",
+        "--seed",
+        "0",
+        "--json",
+    ]);
+    let n = v["num_points"].as_u64().unwrap();
+    assert!(n > 100_000);
+    let counts: u64 = v["histogram"]["counts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_u64().unwrap())
+        .sum();
+    assert_eq!(counts, n, "every point is in the histogram");
+    let frac = v["uncertain_fraction"].as_f64().unwrap();
+    assert!(frac > 0.05 && frac < 1.0, "{frac}");
+    let lidars = v["lidars"].as_array().unwrap();
+    assert_eq!(lidars[0]["channel"], "LIDAR_TOP");
+    assert_eq!(
+        lidars[0]["rho_m"],
+        serde_json::json!([0.0, 0.0, 0.0]),
+        "the primary is never perturbed"
+    );
+    // ±σ bound at α = 0.04: σ_ρ = sqrt(0.04)·0.05 = 0.01 m.
+    for l in &lidars[1..] {
+        for r in l["rho_m"].as_array().unwrap() {
+            assert!(r.as_f64().unwrap().abs() <= 0.01 + 1e-12);
+        }
+    }
+    assert!(!v["boxes"].as_array().unwrap().is_empty());
+    // α = 0: nothing uncertain; the same seed reproduces the same numbers.
+    let zero = json(&["fuse", "--dataset", data, "--json"]);
+    assert_eq!(zero["uncertain_fraction"], 0.0);
+    assert_eq!(json(&["fuse", "--dataset", data, "--alpha", "0.04", "--json"]), v);
+    let out = mlod(&["fuse", "--dataset", data, "--sample", "no-such-token"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no-such-token"));
+}
