@@ -38,12 +38,17 @@ fn register_fonts() {
     });
 }
 
-/// Encodes an RGB buffer as PNG and writes it atomically.
-pub fn write_png_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), PlotError> {
+/// Encodes an 8-bit RGB or RGBA buffer as PNG and writes it atomically.
+pub fn write_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    pixels: &[u8],
+    color: image::ExtendedColorType,
+) -> Result<(), PlotError> {
     let mut bytes = Vec::new();
     let encoder = image::codecs::png::PngEncoder::new(&mut bytes);
-    image::ImageEncoder::write_image(encoder, rgb, width, height, image::ExtendedColorType::Rgb8)
-        .map_err(draw_err)?;
+    image::ImageEncoder::write_image(encoder, pixels, width, height, color).map_err(draw_err)?;
     write_atomic(path, &bytes)?;
     Ok(())
 }
@@ -128,5 +133,5 @@ pub fn plane_fit_png(rows: &[PlaneFitRow], path: &Path) -> Result<(), PlotError>
         }
         root.present().map_err(draw_err)?;
     }
-    write_png_rgb(path, w, h, &buf)
+    write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }

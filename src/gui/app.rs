@@ -356,22 +356,18 @@ impl MlodApp {
 
     fn update_histogram(&mut self) {
         let Some(cloud) = &self.fused else { return };
-        let mode = if self.session.color.mode == ColorMode::Source {
-            ColorMode::Trace
+        let c = &self.session.color;
+        // In source-LiDAR mode the histogram still shows tr(Ξ), on its own log range.
+        self.histogram = if c.mode == ColorMode::Source {
+            histogram(
+                &cloud.trace,
+                auto_range(&cloud.trace, Scale::Log),
+                Scale::Log,
+                HISTOGRAM_BINS,
+            )
         } else {
-            self.session.color.mode
+            histogram(scalars(cloud, c.mode), c.range, c.scale, HISTOGRAM_BINS)
         };
-        let range = if mode == self.session.color.mode {
-            self.session.color.range
-        } else {
-            auto_range(&cloud.trace, Scale::Log)
-        };
-        let scale = if mode == self.session.color.mode {
-            self.session.color.scale
-        } else {
-            Scale::Log
-        };
-        self.histogram = histogram(scalars(cloud, mode), range, scale, HISTOGRAM_BINS);
         self.uncertain_fraction = cloud.uncertain_fraction(UNCERTAIN_TRACE);
     }
 

@@ -63,20 +63,14 @@ pub fn run(options: AppOptions) -> Result<(), GuiError> {
 
 /// Writes an RGBA image as PNG, atomically.
 pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
-    let mut bytes = Vec::new();
-    let enc = image::codecs::png::PngEncoder::new(&mut bytes);
-    image::ImageEncoder::write_image(
-        enc,
-        img.as_raw(),
+    crate::plot::write_png(
+        path,
         img.width(),
         img.height(),
+        img.as_raw(),
         image::ExtendedColorType::Rgba8,
     )
     .map_err(|e| GuiError::Write {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
-    crate::io::write_atomic(path, &bytes).map_err(|e| GuiError::Write {
         path: path.to_path_buf(),
         message: format!("{e:#}"),
     })

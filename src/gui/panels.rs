@@ -9,7 +9,7 @@ use egui::{Color32, RichText, Sense, Stroke};
 
 use super::app::{channel_counts, lidar_label, MlodApp, GT_COLOR};
 use super::viewport::{View, CONTROLS_HELP};
-use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT, LIDAR_COLORS};
+use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
 use crate::lyft::LidarChannel;
 use crate::session::Session;
 use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
@@ -561,7 +561,6 @@ fn view_controls(app: &mut MlodApp, ui: &mut egui::Ui) {
     if changed {
         app.mark_fuse();
     }
-    let _ = LIDAR_COLORS;
 }
 
 pub fn help_overlay(app: &mut MlodApp, ctx: &egui::Context) {
