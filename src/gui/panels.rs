@@ -312,32 +312,8 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
                 let m = app.session.fuse.manual.entry(ch).or_default();
                 let mut deg = m.phi.map(f64::to_degrees);
                 let mut cm = m.rho.map(|v| v * 100.0);
-                ui.horizontal(|ui| {
-                    for (k, name) in ["roll", "pitch", "yaw"].iter().enumerate() {
-                        changed |= ui
-                            .add(
-                                egui::DragValue::new(&mut deg[k])
-                                    .speed(0.05)
-                                    .range(-10.0..=10.0)
-                                    .suffix("°")
-                                    .prefix(format!("{name} ")),
-                            )
-                            .changed();
-                    }
-                });
-                ui.horizontal(|ui| {
-                    for (k, name) in ["x", "y", "z"].iter().enumerate() {
-                        changed |= ui
-                            .add(
-                                egui::DragValue::new(&mut cm[k])
-                                    .speed(0.5)
-                                    .range(-100.0..=100.0)
-                                    .suffix(" cm")
-                                    .prefix(format!("{name} ")),
-                            )
-                            .changed();
-                    }
-                });
+                changed |= drag_row(ui, &mut deg, ["roll", "pitch", "yaw"], 0.05, 10.0, "°");
+                changed |= drag_row(ui, &mut cm, ["x", "y", "z"], 0.5, 100.0, " cm");
                 *m = ExtrinsicNoise {
                     rho: cm.map(|v| v / 100.0),
                     phi: deg.map(f64::to_radians),
@@ -352,6 +328,29 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
     if changed {
         app.mark_fuse();
     }
+}
+
+/// Three labelled drag values in a row, each within ±`limit`; true if any changed.
+fn drag_row(
+    ui: &mut egui::Ui,
+    values: &mut [f64; 3],
+    names: [&str; 3],
+    speed: f64,
+    limit: f64,
+    suffix: &str,
+) -> bool {
+    let mut changed = false;
+    ui.horizontal(|ui| {
+        for (v, name) in values.iter_mut().zip(names) {
+            let widget = egui::DragValue::new(v)
+                .speed(speed)
+                .range(-limit..=limit)
+                .suffix(suffix)
+                .prefix(format!("{name} "));
+            changed |= ui.add(widget).changed();
+        }
+    });
+    changed
 }
 
 fn coloring(app: &mut MlodApp, ui: &mut egui::Ui) {
