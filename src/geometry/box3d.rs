@@ -123,6 +123,15 @@ impl Box3d {
     }
 }
 
+/// A box with a category and a confidence: what a detector outputs and what evaluation scores.
+/// Ground truth uses the same type with `score` 1.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Detection {
+    pub box3d: Box3d,
+    pub score: f32,
+    pub category: String,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
