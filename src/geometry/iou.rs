@@ -165,30 +165,42 @@ fn ratio(inter: f64, union: f64) -> f64 {
     }
 }
 
-/// BEV IoU: footprint intersection over footprint union.
-pub fn iou_bev(a: &Box3d, b: &Box3d) -> f64 {
-    let (fa, fb) = (Footprint::of_box(a), Footprint::of_box(b));
-    let inter = fa.intersection_area(&fb);
-    ratio(inter, fa.area + fb.area - inter)
+fn volume(b: &Box3d) -> f64 {
+    b.size_lwh[0] * b.size_lwh[1] * b.size_lwh[2]
 }
 
-/// 3D IoU of upright boxes: footprint intersection × height overlap over the union volume.
-pub fn iou_3d(a: &Box3d, b: &Box3d) -> f64 {
-    let h = height_overlap(a, b);
-    if h <= 0.0 {
-        return 0.0;
+/// IoU of two boxes given their footprints (computed once by callers that reuse them): the one
+/// formula behind [`iou_bev`], [`iou_3d`], [`iou_matrix`] and NMS.
+pub fn iou_with_footprints(a: &Box3d, fa: &Footprint, b: &Box3d, fb: &Footprint, kind: IouKind) -> f64 {
+    match kind {
+        IouKind::Bev => {
+            let inter = fa.intersection_area(fb);
+            ratio(inter, fa.area + fb.area - inter)
+        }
+        IouKind::ThreeD => {
+            let h = height_overlap(a, b);
+            if h <= 0.0 {
+                return 0.0;
+            }
+            let inter = fa.intersection_area(fb) * h;
+            ratio(inter, volume(a) + volume(b) - inter)
+        }
     }
-    let inter = Footprint::of_box(a).intersection_area(&Footprint::of_box(b)) * h;
-    let vol = |x: &Box3d| x.size_lwh[0] * x.size_lwh[1] * x.size_lwh[2];
-    ratio(inter, vol(a) + vol(b) - inter)
 }
 
 /// IoU of one pair by kind.
 pub fn iou(a: &Box3d, b: &Box3d, kind: IouKind) -> f64 {
-    match kind {
-        IouKind::Bev => iou_bev(a, b),
-        IouKind::ThreeD => iou_3d(a, b),
-    }
+    iou_with_footprints(a, &Footprint::of_box(a), b, &Footprint::of_box(b), kind)
+}
+
+/// BEV IoU: footprint intersection over footprint union.
+pub fn iou_bev(a: &Box3d, b: &Box3d) -> f64 {
+    iou(a, b, IouKind::Bev)
+}
+
+/// 3D IoU of upright boxes: footprint intersection × height overlap over the union volume.
+pub fn iou_3d(a: &Box3d, b: &Box3d) -> f64 {
+    iou(a, b, IouKind::ThreeD)
 }
 
 /// Pairs below which the matrix is computed on one thread.
@@ -203,27 +215,9 @@ pub fn iou_matrix(a: &[Box3d], b: &[Box3d], kind: IouKind) -> Vec<f64> {
     }
     let fb: Vec<Footprint> = b.iter().map(Footprint::of_box).collect();
     let row = |(i, r): (usize, &mut [f64])| {
-        let ai = &a[i];
-        let fa = Footprint::of_box(ai);
-        let va = ai.size_lwh[0] * ai.size_lwh[1] * ai.size_lwh[2];
+        let fa = Footprint::of_box(&a[i]);
         for (j, out) in r.iter_mut().enumerate() {
-            let bj = &b[j];
-            *out = match kind {
-                IouKind::Bev => {
-                    let inter = fa.intersection_area(&fb[j]);
-                    ratio(inter, fa.area + fb[j].area - inter)
-                }
-                IouKind::ThreeD => {
-                    let h = height_overlap(ai, bj);
-                    if h <= 0.0 {
-                        0.0
-                    } else {
-                        let inter = fa.intersection_area(&fb[j]) * h;
-                        let vb = bj.size_lwh[0] * bj.size_lwh[1] * bj.size_lwh[2];
-                        ratio(inter, va + vb - inter)
-                    }
-                }
-            };
+            *out = iou_with_footprints(&a[i], &fa, &b[j], &fb[j], kind);
         }
     };
     if a.len() * m >= PARALLEL_PAIRS {

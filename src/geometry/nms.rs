@@ -2,7 +2,7 @@
 //! (ties by input order, NaN scores last) and a box is kept unless it overlaps an already kept
 //! box by more than the threshold. Used by the detectors' decoding and by Result Fusion.
 
-use super::iou::{height_overlap, Footprint, IouKind};
+use super::iou::{iou_with_footprints, Footprint, IouKind};
 use super::Box3d;
 
 /// The visiting order of NMS and of score-ranked matching: descending score, ties by index,
@@ -20,23 +20,11 @@ pub fn nms(boxes: &[Box3d], scores: &[f32], iou_threshold: f64, kind: IouKind) -
     let n = boxes.len().min(scores.len());
     let order = score_order(&scores[..n]);
     let foot: Vec<Footprint> = boxes[..n].iter().map(Footprint::of_box).collect();
-    let vol = |b: &Box3d| b.size_lwh[0] * b.size_lwh[1] * b.size_lwh[2];
     let mut kept: Vec<usize> = Vec::new();
     for &i in &order {
-        let suppressed = kept.iter().any(|&k| {
-            let inter_area = foot[i].intersection_area(&foot[k]);
-            if inter_area <= 0.0 {
-                return false;
-            }
-            let iou = match kind {
-                IouKind::Bev => inter_area / (foot[i].area + foot[k].area - inter_area),
-                IouKind::ThreeD => {
-                    let inter = inter_area * height_overlap(&boxes[i], &boxes[k]);
-                    inter / (vol(&boxes[i]) + vol(&boxes[k]) - inter)
-                }
-            };
-            iou > iou_threshold
-        });
+        let suppressed = kept
+            .iter()
+            .any(|&k| iou_with_footprints(&boxes[i], &foot[i], &boxes[k], &foot[k], kind) > iou_threshold);
         if !suppressed {
             kept.push(i);
         }
