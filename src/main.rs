@@ -12,6 +12,8 @@ use mlod::uncertainty::plane::{plane_fit_experiment, PlaneCase, PlaneFitConfig};
 use mlod::uncertainty::propagate::{covariance, extrinsic_covariance, worked_example};
 use mlod::uncertainty::{Linearization, Prior};
 
+mod cli_detect;
+
 #[derive(Parser)]
 #[command(
     name = "mlod",
@@ -60,6 +62,11 @@ enum Command {
     Inspect(InspectArgs),
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
     PlaneFit(PlaneFitArgs),
+    /// Train the stage-1 detectors, or calibrate Result Fusion's temperatures.
+    #[command(subcommand)]
+    Train(cli_detect::TrainCommand),
+    /// Run a stage-1 detector (shipped weights) on one sample and print its boxes.
+    Detect(cli_detect::DetectArgs),
 }
 
 #[derive(clap::Args)]
@@ -563,5 +570,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Inspect(a)) => inspect(a),
         Some(Command::Fuse(a)) => fuse_cmd(a),
         Some(Command::Synth(a)) => synth(a),
+        Some(Command::Train(c)) => cli_detect::train(c),
+        Some(Command::Detect(a)) => cli_detect::detect(a),
     }
 }
