@@ -48,6 +48,10 @@ pub struct Stage1Args {
     /// Train on at most this many samples (0: all).
     #[arg(long, default_value_t = 0)]
     max_samples: usize,
+    /// Start from another model's weights (warm start; a single-branch model initialises every
+    /// Feature Fusion branch).
+    #[arg(long)]
+    init: Option<PathBuf>,
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
@@ -115,6 +119,7 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             cfg.lr = a.lr;
             cfg.max_samples = a.max_samples;
             cfg.checkpoint_every_s = a.checkpoint_every;
+            cfg.init = a.init;
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }

@@ -344,6 +344,9 @@ pub struct TrainConfig {
     pub resume: bool,
     /// Use at most this many training samples (0: all).
     pub max_samples: usize,
+    /// Start from these weights instead of random ones (a model of the same network shape; a
+    /// single-branch model also initialises every Feature Fusion branch). Ignored on resume.
+    pub init: Option<PathBuf>,
     /// The command line, recorded in the manifest.
     pub command: String,
 }
@@ -366,6 +369,7 @@ impl TrainConfig {
             loss_csv,
             resume: false,
             max_samples: 0,
+            init: None,
             command: String::new(),
         }
     }
@@ -566,6 +570,42 @@ fn load_checkpoint(
     })
 }
 
+/// Copies weights from another model file into `model`: same names, or `middle.*` of a
+/// single-branch model into each `middle_<lidar>.*` branch of Feature Fusion.
+pub fn warm_start(model: &Stage1Model, path: &Path) -> Result<(), DetectError> {
+    let w = read_weights(path, None)?;
+    let varmap = model
+        .varmap
+        .as_ref()
+        .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+    for (name, var) in data.iter() {
+        let single = name
+            .strip_prefix("middle_")
+            .and_then(|rest| rest.split_once('.'))
+            .map(|(_, tail)| format!("middle.{tail}"));
+        let src = w
+            .tensors
+            .get(name)
+            .or_else(|| single.as_ref().and_then(|n| w.tensors.get(n)))
+            .ok_or_else(|| DetectError::Weights {
+                path: path.to_path_buf(),
+                what: format!("no tensor for {name}"),
+            })?;
+        if src.dims() != var.dims() {
+            return Err(DetectError::Weights {
+                path: path.to_path_buf(),
+                what: format!("{name} has shape {:?}, expected {:?}", src.dims(), var.dims()),
+            });
+        }
+        var.set(src)?;
+    }
+    Ok(())
+}
+
 /// Trains a stage-1 model (see the module doc). `on_step` sees every step's record.
 pub fn train_stage1(
     cfg: &TrainConfig,
@@ -592,6 +632,9 @@ pub fn train_stage1(
     let mut ck = if cfg.resume && cfg.checkpoint.exists() {
         load_checkpoint(cfg, &model, &mut opt)?
     } else {
+        if let Some(init) = &cfg.init {
+            warm_start(&model, init)?;
+        }
         Checkpoint {
             step: 0,
             elapsed_s: 0.0,
