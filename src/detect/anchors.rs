@@ -291,6 +291,11 @@ mod tests {
     fn direction_class_recovers_heading() {
         for i in -40..40 {
             let yaw = i as f32 * 0.0785;
+            // Within the noise of the class boundary the half-turn is ambiguous by design.
+            let m = (yaw - DIR_OFFSET).rem_euclid(PI);
+            if m < 0.02 || m > PI - 0.02 {
+                continue;
+            }
             // The regression only knows the heading modulo π.
             let noisy = yaw + if i % 2 == 0 { PI } else { 0.0 } + 0.01;
             let back = apply_direction(noisy, dir_class(yaw));
