@@ -293,14 +293,14 @@ mod tests {
             let yaw = i as f32 * 0.0785;
             // Within the noise of the class boundary the half-turn is ambiguous by design.
             let m = (yaw - DIR_OFFSET).rem_euclid(PI);
-            if m < 0.02 || m > PI - 0.02 {
+            if !(0.02..=PI - 0.02).contains(&m) {
                 continue;
             }
             // The regression only knows the heading modulo π.
             let noisy = yaw + if i % 2 == 0 { PI } else { 0.0 } + 0.01;
             let back = apply_direction(noisy, dir_class(yaw));
             let d = (back - yaw - 0.01).rem_euclid(2.0 * PI);
-            assert!(d < 1e-4 || d > 2.0 * PI - 1e-4, "{yaw} -> {back}");
+            assert!(!(1e-4..=2.0 * PI - 1e-4).contains(&d), "{yaw} -> {back}");
         }
     }
 

@@ -56,7 +56,7 @@ impl GridConfig {
     pub fn column(&self, x: f32, y: f32) -> Option<usize> {
         let fx = (x - self.xy_min) / self.cell;
         let fy = (y - self.xy_min) / self.cell;
-        if !(fx >= 0.0 && fy >= 0.0) {
+        if fx.is_nan() || fy.is_nan() || fx < 0.0 || fy < 0.0 {
             return None;
         }
         let (ix, iy) = (fx as usize, fy as usize);
@@ -112,7 +112,7 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
     for i in 0..pts.len() {
         let z = pts.z[i];
         let fz = (z - grid.z_min) / dz;
-        if !(fz >= 0.0) || fz >= nz as f32 {
+        if !(0.0..(nz as f32)).contains(&fz) {
             continue;
         }
         let Some(c) = grid.column(pts.x[i], pts.y[i]) else {

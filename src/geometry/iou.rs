@@ -49,7 +49,9 @@ impl Footprint {
             corners.reverse();
         }
         let area = 4.0 * cross(u, v).abs();
-        let radius = (u[0] + v[0]).hypot(u[1] + v[1]).max((u[0] - v[0]).hypot(u[1] - v[1]));
+        let radius = (u[0] + v[0])
+            .hypot(u[1] + v[1])
+            .max((u[0] - v[0]).hypot(u[1] - v[1]));
         Self {
             corners,
             center,
@@ -303,8 +305,12 @@ mod tests {
 
     #[test]
     fn matrix_matches_pairs() {
-        let a: Vec<Box3d> = (0..7).map(|i| bx(i as f64 * 0.7, 0.1 * i as f64, 4.0, 2.0, 0.2 * i as f64)).collect();
-        let b: Vec<Box3d> = (0..5).map(|i| bx(i as f64, -0.2, 3.5, 1.8, -0.3 * i as f64)).collect();
+        let a: Vec<Box3d> = (0..7)
+            .map(|i| bx(i as f64 * 0.7, 0.1 * i as f64, 4.0, 2.0, 0.2 * i as f64))
+            .collect();
+        let b: Vec<Box3d> = (0..5)
+            .map(|i| bx(i as f64, -0.2, 3.5, 1.8, -0.3 * i as f64))
+            .collect();
         for kind in [IouKind::Bev, IouKind::ThreeD] {
             let m = iou_matrix(&a, &b, kind);
             for i in 0..a.len() {
