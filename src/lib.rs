@@ -7,6 +7,7 @@
 
 pub mod color;
 pub mod detect;
+pub mod eval;
 pub mod geometry;
 pub mod io;
 pub mod lyft;

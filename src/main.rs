@@ -67,6 +67,41 @@ enum Command {
     Train(cli_detect::TrainCommand),
     /// Run a stage-1 detector (shipped weights) on one sample and print its boxes.
     Detect(cli_detect::DetectArgs),
+    /// Score predictions against a dataset's ground truth: KITTI-style AP_3D as the paper reports it
+    /// (§V-A-2, in percent) and Lyft's official mAP (devkit footprint and exact footprint).
+    Eval(EvalArgs),
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// A Lyft-format dataset (root or version folder).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Predictions: a JSON list in the Lyft devkit format (sample_token, translation [global],
+    /// size [w,l,h], rotation [w,x,y,z], name, score).
+    #[arg(long)]
+    pred: PathBuf,
+    /// Evaluate only the first N samples of the dataset.
+    #[arg(long)]
+    samples: Option<usize>,
+    /// KITTI recall points: r40 (default) or r11.
+    #[arg(long, default_value = "r40", value_parser = ["r40", "r11"])]
+    interpolation: String,
+    /// Add every box's outcome (TP with its GT and IoU, FP, miss) to the JSON.
+    #[arg(long)]
+    per_box: bool,
+    /// IoU threshold of the per-box outcomes (3D IoU, ≥).
+    #[arg(long, default_value_t = 0.7, value_parser = parse_unit)]
+    match_iou: f64,
+    /// Range of the per-box outcomes (m): boxes farther from the base origin are ignored.
+    #[arg(long, default_value_t = 50.0)]
+    match_range: f64,
+    /// Print JSON instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Also write the JSON to this file (atomically).
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -192,6 +227,14 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
         return Err(format!("expected three comma-separated numbers, got '{s}'"));
     }
     Ok([parse_f64(parts[0])?, parse_f64(parts[1])?, parse_f64(parts[2])?])
+}
+
+fn parse_unit(s: &str) -> Result<f64, String> {
+    let v = parse_f64(s)?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("must be in [0, 1], got {v}"));
+    }
+    Ok(v)
 }
 
 fn parse_alpha(s: &str) -> Result<f64, String> {
@@ -572,5 +615,93 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Synth(a)) => synth(a),
         Some(Command::Train(c)) => cli_detect::train(c),
         Some(Command::Detect(a)) => cli_detect::detect(a),
+        Some(Command::Eval(a)) => eval_cmd(a),
     }
+}
+
+fn eval_cmd(args: EvalArgs) -> Result<()> {
+    use mlod::eval::{EvalOptions, Interpolation, MatchRule};
+    if args.match_range.is_nan() || args.match_range <= 0.0 {
+        bail!("--match-range must be positive, got {}", args.match_range);
+    }
+    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    let mut opts = EvalOptions {
+        samples: args.samples,
+        ..Default::default()
+    };
+    if args.interpolation == "r11" {
+        opts.kitti.interpolation = Interpolation::R11;
+    }
+    if args.per_box {
+        opts.per_box = Some(MatchRule {
+            iou_threshold: args.match_iou,
+            max_range: args.match_range,
+            ..Default::default()
+        });
+    }
+    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();
+    let raw = mlod::eval::read_predictions(&args.pred)?;
+    let preds = mlod::eval::parse_predictions(&raw, &known);
+    if !preds.rejected.is_empty() {
+        eprintln!(
+            "warning: {} of {} predictions in {} rejected and skipped; first:",
+            preds.rejected.len(),
+            preds.total,
+            args.pred.display()
+        );
+        for r in preds.rejected.iter().take(5) {
+            let tok = r.sample_token.as_deref().unwrap_or("?");
+            eprintln!("  #{} (sample {tok}): {}", r.index, r.reason);
+        }
+    }
+    let report = mlod::eval::evaluate(&dataset, &preds, &opts)?;
+    let json = serde_json::to_string_pretty(&report)?;
+    if let Some(out) = &args.out {
+        mlod::io::write_atomic(out, format!("{json}\n").as_bytes())?;
+    }
+    if args.json {
+        println!("{json}");
+        return Ok(());
+    }
+    println!(
+        "{} samples, {} predictions used ({} rejected)",
+        report.samples, report.predictions.accepted, report.predictions.rejected
+    );
+    println!("\nKITTI-style AP_3D (%), {} interpolation", args.interpolation);
+    println!(
+        "{:<20} {:>7} {:>7} {:>7}   {:>7} {:>7} {:>7}",
+        "class", "easy", "mod.", "hard", "easy", "mod.", "hard"
+    );
+    println!("{:<20} {:^23}   {:^23}", "", "IoU >= 0.7", "IoU >= 0.5");
+    let cell = |v: Option<&Option<f64>>| match v {
+        Some(Some(x)) => format!("{x:>7.2}"),
+        _ => format!("{:>7}", "-"),
+    };
+    for (class, per_t) in &report.kitti.0 {
+        let row = |t: &str| {
+            let d = per_t.get(t);
+            ["easy", "moderate", "hard"]
+                .iter()
+                .map(|k| cell(d.and_then(|d| d.get(k))))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        println!("{class:<20} {}   {}", row("iou_0.7"), row("iou_0.5"));
+    }
+    println!("\nLyft mAP (IoU > t)   devkit   exact footprint");
+    for (t, m) in &report.lyft.per_threshold {
+        let e = report
+            .lyft_exact
+            .per_threshold
+            .get(t)
+            .copied()
+            .unwrap_or(f64::NAN);
+        println!("  t = {t:<5}          {m:.4}   {e:.4}");
+    }
+    println!(
+        "  mean                {:.4}   {:.4}",
+        report.lyft.map, report.lyft_exact.map
+    );
+    Ok(())
 }

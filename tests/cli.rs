@@ -270,3 +270,73 @@ fn fuse_reports_what_the_gui_shows() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no-such-token"));
 }
+
+#[test]
+fn eval_prints_the_issue_json_shape_and_rejects_bad_files() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let data = format!("{root}/sample_data");
+    let pred = format!("{root}/tests/fixtures/devkit_expected/eval_sample_data/pred_all.json");
+    let dir = std::env::temp_dir().join(format!("mlod-cli-eval-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("tmp");
+    let out_file = dir.join("eval.json");
+    let v = json(&[
+        "eval",
+        "--dataset",
+        &data,
+        "--pred",
+        &pred,
+        "--json",
+        "--per-box",
+        "--out",
+        out_file.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(v["samples"], 10);
+    // kitti -> class -> iou_0.7 / iou_0.5 -> easy / moderate / hard, car first.
+    let kitti = v["kitti"].as_object().expect("kitti");
+    assert_eq!(kitti.keys().next().map(String::as_str), Some("car"));
+    for t in ["iou_0.7", "iou_0.5"] {
+        for d in ["easy", "moderate", "hard"] {
+            let ap = kitti["car"][t][d].as_f64().expect("car AP");
+            assert!((0.0..=100.0).contains(&ap));
+        }
+    }
+    for key in ["lyft", "lyft_exact"] {
+        let per = v[key]["per_threshold"].as_object().expect("per_threshold");
+        assert_eq!(per.len(), 10);
+        assert!(per.contains_key("0.5") && per.contains_key("0.95"));
+        assert!(v[key]["mAP"].as_f64().is_some());
+    }
+    assert_eq!(v["predictions"]["rejected"], 6);
+    assert_eq!(v["per_box"].as_array().map(Vec::len), Some(10));
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out_file).expect("--out written")).expect("json");
+    assert_eq!(written, v);
+
+    // Bad inputs: a missing file, a file that is not JSON, JSON that is not a list.
+    let not_json = dir.join("bad.json");
+    std::fs::write(&not_json, "[{\"sample_token\": ").expect("write");
+    let not_list = dir.join("obj.json");
+    std::fs::write(&not_list, "{\"a\": 1}").expect("write");
+    for (file, needle) in [
+        (dir.join("missing.json"), "cannot read predictions"),
+        (not_json, "not valid JSON"),
+        (not_list, "expected a JSON list"),
+    ] {
+        let out = mlod(&[
+            "eval",
+            "--dataset",
+            &data,
+            "--pred",
+            file.to_str().expect("utf-8"),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(
+            err.contains(needle) && err.contains(file.to_str().expect("utf-8")),
+            "{err}"
+        );
+    }
+    let out = mlod(&["eval", "--dataset", &data, "--pred", &pred, "--match-iou", "1.5"]);
+    assert!(!out.status.success());
+    std::fs::remove_dir_all(&dir).ok();
+}

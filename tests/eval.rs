@@ -1,0 +1,136 @@
+//! `mlod eval` against the official Lyft devkit and hand-checkable cases.
+//!
+//! `tests/fixtures/devkit_expected/eval_sample_data/` holds randomly perturbed predictions for
+//! sample_data/ (`tests/devkit/make_predictions.py sample_data OUT --seed 0`, `pred_all.json`,
+//! 6 invalid records included) and what lyft-dataset-sdk 0.0.8 computed on the valid ones
+//! (`tests/devkit/map_eval.py OUT/pred_valid.json OUT/gt.json devkit.json`).
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+use mlod::eval::{self, EvalOptions, GtOutcome, MatchRule, PredOutcome};
+use mlod::lyft::Dataset;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf()
+}
+
+fn fixture(name: &str) -> PathBuf {
+    root()
+        .join("tests/fixtures/devkit_expected/eval_sample_data")
+        .join(name)
+}
+
+fn sample_data() -> Dataset {
+    Dataset::open(root().join("sample_data")).expect("sample_data opens")
+}
+
+fn known(tokens: &[String]) -> HashSet<&str> {
+    tokens.iter().map(String::as_str).collect()
+}
+
+#[test]
+fn lyft_map_agrees_with_the_official_devkit() {
+    let ds = sample_data();
+    let opts = EvalOptions::default();
+    let tokens = eval::sample_tokens(&ds, &opts);
+    let raw = eval::read_predictions(&fixture("pred_all.json")).expect("predictions");
+    let preds = eval::parse_predictions(&raw, &known(&tokens));
+    // Exactly the six planted invalid records are rejected, each with its reason.
+    assert_eq!(preds.rejected.len(), 6, "{:#?}", preds.rejected);
+    let reasons: Vec<&str> = preds.rejected.iter().map(|r| r.reason.as_str()).collect();
+    for needle in [
+        "translation[1]",
+        "unknown sample_token",
+        "size[0]",
+        "unit quaternion",
+        "score",
+        "size has 2",
+    ] {
+        assert!(
+            reasons.iter().any(|r| r.contains(needle)),
+            "no rejection for {needle}: {reasons:?}"
+        );
+    }
+    let report = eval::evaluate(&ds, &preds, &opts).expect("evaluates");
+    assert_eq!(report.samples, 10);
+
+    let expected: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture("devkit.json")).expect("read")).expect("json");
+    let per = expected["per_threshold"].as_array().expect("per_threshold");
+    assert_eq!(per.len(), 10);
+    for p in per {
+        let t = p["iou_threshold"].as_f64().expect("t");
+        let key = format!("{t}");
+        let ours = report.lyft.per_threshold[&key];
+        let theirs = p["mAP"].as_f64().expect("mAP");
+        assert!(
+            (ours - theirs).abs() < 1e-6,
+            "t = {t}: mlod {ours} vs devkit {theirs}"
+        );
+        for (class, ap) in p["ap_per_class"].as_object().expect("classes") {
+            let ours = report.lyft.per_class[&key][class];
+            let theirs = ap.as_f64().expect("ap");
+            assert!(
+                (ours - theirs).abs() < 1e-6,
+                "t = {t}, {class}: mlod {ours} vs devkit {theirs}"
+            );
+        }
+    }
+    let mean = expected["mAP_mean_over_thresholds"].as_f64().expect("mean");
+    assert!((report.lyft.map - mean).abs() < 1e-6);
+    // The true footprint judges offsets differently: the exact metric is not the devkit's.
+    assert!((report.lyft_exact.map - report.lyft.map).abs() > 1e-3);
+}
+
+/// Predictions equal to the ground truth: every metric is perfect.
+#[test]
+fn ground_truth_as_predictions_is_perfect() {
+    let ds = sample_data();
+    let opts = EvalOptions {
+        per_box: Some(MatchRule::default()),
+        ..Default::default()
+    };
+    let mut dets = HashMap::new();
+    for tok in eval::sample_tokens(&ds, &opts) {
+        let info = ds.frame_info(&tok).expect("frame");
+        let boxes = info
+            .boxes
+            .iter()
+            .map(|b| mlod::geometry::Detection {
+                box3d: b.box3d,
+                score: 0.5,
+                category: b.category.clone(),
+            })
+            .collect();
+        dets.insert(tok, boxes);
+    }
+    let report = eval::evaluate_detections(&ds, &dets, &opts).expect("evaluates");
+    // IoU 1 is above every threshold, 0.95 included.
+    assert!((report.lyft.map - 1.0).abs() < 1e-9, "{}", report.lyft.map);
+    assert!(
+        (report.lyft_exact.map - 1.0).abs() < 1e-9,
+        "{}",
+        report.lyft_exact.map
+    );
+    for (class, per_t) in &report.kitti.0 {
+        for (t, per_d) in &per_t.0 {
+            for (d, ap) in &per_d.0 {
+                if let Some(ap) = ap {
+                    assert!((ap - 100.0).abs() < 1e-9, "{class} {t} {d}: {ap}");
+                }
+            }
+        }
+    }
+    let per_box = report.per_box.expect("per-box");
+    for s in &per_box {
+        for p in &s.preds {
+            assert!(
+                matches!(p.outcome, PredOutcome::TruePositive { iou, .. } if (iou - 1.0).abs() < 1e-9)
+                    || (p.range >= 50.0 && p.outcome == PredOutcome::Ignored),
+                "{p:?}"
+            );
+        }
+        assert!(s.gts.iter().all(|g| !matches!(g.outcome, GtOutcome::Missed)));
+    }
+}
