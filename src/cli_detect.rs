@@ -233,19 +233,16 @@ pub fn detect(a: DetectArgs) -> Result<()> {
         }
         DetectFormat::Lyft => {
             let to_global = frame.primary.info.ego_to_global * frame.primary.info.sensor_to_ego;
-            let rows: Vec<serde_json::Value> = dets
+            let rows: Vec<mlod::eval::LyftBox> = dets
                 .iter()
                 .map(|d| {
-                    let g = d.box3d.transformed(&to_global);
-                    let q = g.rotation();
-                    serde_json::json!({
-                        "sample_token": token,
-                        "translation": g.center,
-                        "size": g.size_wlh(),
-                        "rotation": [q.w, q.i, q.j, q.k],
-                        "name": d.category,
-                        "score": d.score,
-                    })
+                    mlod::eval::LyftBox::from_base(
+                        &token,
+                        &d.box3d,
+                        &to_global,
+                        &d.category,
+                        Some(f64::from(d.score)),
+                    )
                 })
                 .collect();
             println!("{}", serde_json::to_string_pretty(&rows)?);

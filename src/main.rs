@@ -79,8 +79,21 @@ struct EvalArgs {
     dataset: PathBuf,
     /// Predictions: a JSON list in the Lyft devkit format (sample_token, translation [global],
     /// size [w,l,h], rotation [w,x,y,z], name, score).
+    #[arg(long, required_unless_present = "case", conflicts_with = "case")]
+    pred: Option<PathBuf>,
+    /// Instead of --pred: run this stage-1 detector (shipped weights) over the samples.
     #[arg(long)]
-    pred: PathBuf,
+    case: Option<mlod::detect::Case>,
+    /// With --case: α of the perturbation injected into the auxiliary LiDARs (one draw, the same
+    /// mis-calibration for every sample, as on one car).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
+    alpha: f64,
+    /// With --case: seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// With --case: models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
     /// Evaluate only the first N samples of the dataset.
     #[arg(long)]
     samples: Option<usize>,
@@ -640,15 +653,37 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         });
     }
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    let Some(pred_path) = &args.pred else {
+        let case = args.case.context("give --pred FILE or --case CASE")?;
+        let models = args
+            .models
+            .clone()
+            .unwrap_or_else(mlod::detect::weights::default_models_dir);
+        let detector = mlod::detect::model::load_detector(&models, case)?;
+        let params = mlod::pipeline::FuseParams {
+            perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
+            ..Default::default()
+        };
+        let bar = indicatif::ProgressBar::new(tokens.len() as u64);
+        let mut dets = std::collections::HashMap::new();
+        for tok in &tokens {
+            let frame = dataset.frame(tok)?;
+            dets.insert(tok.clone(), detector.detect(&frame, &params)?);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+        return print_eval(&args, &report);
+    };
     let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();
-    let raw = mlod::eval::read_predictions(&args.pred)?;
+    let raw = mlod::eval::read_predictions(pred_path)?;
     let preds = mlod::eval::parse_predictions(&raw, &known);
     if !preds.rejected.is_empty() {
         eprintln!(
             "warning: {} of {} predictions in {} rejected and skipped; first:",
             preds.rejected.len(),
             preds.total,
-            args.pred.display()
+            pred_path.display()
         );
         for r in preds.rejected.iter().take(5) {
             let tok = r.sample_token.as_deref().unwrap_or("?");
@@ -656,7 +691,11 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         }
     }
     let report = mlod::eval::evaluate(&dataset, &preds, &opts)?;
-    let json = serde_json::to_string_pretty(&report)?;
+    print_eval(&args, &report)
+}
+
+fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()> {
+    let json = serde_json::to_string_pretty(report)?;
     if let Some(out) = &args.out {
         mlod::io::write_atomic(out, format!("{json}\n").as_bytes())?;
     }
