@@ -561,6 +561,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
         session,
         synchronous: false,
         measure_frames: None,
+        models: None,
     })
 }
 

@@ -146,6 +146,10 @@ pub trait Detector: Send + Sync {
     /// The case this detector implements.
     fn case(&self) -> Case;
 
+    /// The Lyft categories it can output (`car`, ...); ground truth of other classes is not its
+    /// business.
+    fn categories(&self) -> Vec<String>;
+
     /// Fuses the frame with `params` (so perturbations reach the auxiliary LiDARs) and detects
     /// objects; boxes are in the base frame, highest score first.
     fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError>;

@@ -314,6 +314,10 @@ impl Detector for Stage1Model {
         self.config.case
     }
 
+    fn categories(&self) -> Vec<String> {
+        vec![self.config.anchor.category.clone()]
+    }
+
     fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
         if let Some(ch) = self.config.case.channel() {
             if frame.lidar(ch).is_none() {
@@ -390,6 +394,13 @@ impl ResultFusion {
 impl Detector for ResultFusion {
     fn case(&self) -> Case {
         Case::Result
+    }
+
+    fn categories(&self) -> Vec<String> {
+        let mut c: Vec<String> = self.generators.iter().flat_map(|(m, _)| m.categories()).collect();
+        c.sort();
+        c.dedup();
+        c
     }
 
     fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {

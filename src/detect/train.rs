@@ -32,7 +32,7 @@ use super::anchors::{assign, RawBox, Targets};
 use super::model::{branch_points, ModelConfig, Stage1Model};
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 use super::voxel::{voxelize, Bev, PointsRef};
-use super::weights::{read_weights, sha256_hex, Manifest, ModelEntry};
+use super::weights::{read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
 use super::{Case, DetectError};
 use crate::geometry::{iou_3d, Box3d};
 use crate::lyft::{Dataset, Frame};
@@ -715,6 +715,7 @@ pub fn train_stage1(
             .file_name()
             .map(|f| f.to_string_lossy().into_owned())
             .unwrap_or_default();
+        let init = cfg.init.as_deref().map(InitRecord::of_file);
         manifest.models.insert(
             cfg.case,
             ModelEntry {
@@ -725,6 +726,7 @@ pub fn train_stage1(
                 steps: ck.step,
                 wall_time_s: ck.elapsed_s,
                 test_ap: BTreeMap::new(),
+                init,
             },
         );
         manifest.save(dir)?;

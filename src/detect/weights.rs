@@ -128,6 +128,54 @@ pub struct ModelEntry {
     /// Test-split AP figures (filled by `mlod eval`), e.g. `{"moderate_ap3d_0.7": 61.2}`.
     #[serde(default)]
     pub test_ap: BTreeMap<String, f64>,
+    /// The weights this training started from (`--init`), if it was a warm start.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<InitRecord>,
+}
+
+/// The starting point of a warm-started training: file name and its sha256 when it was read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InitRecord {
+    pub file: String,
+    pub sha256: String,
+    /// The starting model's own manifest entry (from the manifest beside it, matched by sha256),
+    /// so the whole chain of trainings stays on record.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entry: Option<Box<ModelEntry>>,
+}
+
+impl InitRecord {
+    /// Describes the weights file `path`: its name, sha256 and, when the manifest in its folder
+    /// lists a model with that checksum, that entry.
+    pub fn of_file(path: &Path) -> Self {
+        let file = path
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let sha256 = match std::fs::read(path) {
+            Ok(b) => sha256_hex(&b),
+            Err(e) => {
+                return Self {
+                    file,
+                    sha256: format!("unreadable: {e}"),
+                    entry: None,
+                }
+            }
+        };
+        let entry = path
+            .parent()
+            .and_then(|d| {
+                Manifest::load(if d.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    d
+                })
+                .ok()
+            })
+            .and_then(|m| m.models.into_values().find(|e| e.sha256 == sha256))
+            .map(Box::new);
+        Self { file, sha256, entry }
+    }
 }
 
 /// `assets/models/manifest.json`.
