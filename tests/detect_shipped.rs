@@ -54,3 +54,22 @@ fn shipped_weights_reproduce_committed_detections() {
     }
     eprintln!("checked {checked} (case, frame) pairs");
 }
+
+#[test]
+fn warm_started_models_name_shipped_starting_weights() {
+    let models = default_models_dir();
+    let Ok(manifest) = Manifest::load(&models) else {
+        return;
+    };
+    for (case, entry) in &manifest.models {
+        let Some(init) = &entry.init else { continue };
+        // The starting weights ship in assets/models/init/ with the checksum the manifest names,
+        // and their own entry (command, seed, steps) is on record.
+        let path = models.join("init").join(&init.file);
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{case}: {}: {e}", path.display()));
+        assert_eq!(mlod::detect::weights::sha256_hex(&bytes), init.sha256, "{case}");
+        let from = init.entry.as_ref().expect("the starting model's entry");
+        assert_eq!(from.sha256, init.sha256);
+        assert!(from.command.contains("train stage1") && from.steps > 0);
+    }
+}

@@ -310,4 +310,15 @@ fn write_screenshot_sessions() {
     h.state_mut().set_preset(View::Bev);
     h.run_steps(2);
     save(&h, "bev");
+    // Stage-1 detection: Input Fusion at α = 0.04 run on load, proposals (blue, false positives
+    // greyed) over the ground truth (green), chase view over the cars ahead.
+    let mut s = session_at(0.04, ColorMode::Height);
+    s.color.scale = mlod::color::Scale::Linear;
+    s.auto_range = true;
+    s.detection.case = Case::Input;
+    s.detection.auto_run = true;
+    let mut h = harness(Some(s));
+    h.state_mut().set_preset(View::Chase);
+    h.run_steps(2);
+    save(&h, "detections");
 }

@@ -13,6 +13,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use rayon::prelude::*;
+
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
@@ -374,20 +376,25 @@ impl ResultFusion {
 
     /// Detections on a fused cloud (generators whose LiDAR is absent contribute nothing).
     pub fn detect_cloud(&self, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
-        let mut all = Vec::new();
-        for (model, t) in &self.generators {
-            let present = model
-                .config
-                .case
-                .channel()
-                .is_some_and(|ch| cloud.lidars.iter().any(|l| l.channel == ch));
-            if !present {
-                continue;
-            }
-            let heads = model.forward(&model.voxelize(cloud), false)?;
-            all.extend(model.decode(&heads, *t)?.into_iter().map(|(d, _)| d));
-        }
-        Ok(self.merge(all))
+        // The generators are independent: run them side by side (one network scales poorly past
+        // one core), then merge in generator order so the output does not depend on scheduling.
+        let per_generator: Vec<Vec<Detection>> = self
+            .generators
+            .par_iter()
+            .map(|(model, t)| -> Result<Vec<Detection>, DetectError> {
+                let present = model
+                    .config
+                    .case
+                    .channel()
+                    .is_some_and(|ch| cloud.lidars.iter().any(|l| l.channel == ch));
+                if !present {
+                    return Ok(Vec::new());
+                }
+                let heads = model.forward(&model.voxelize(cloud), false)?;
+                Ok(model.decode(&heads, *t)?.into_iter().map(|(d, _)| d).collect())
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(self.merge(per_generator.into_iter().flatten().collect()))
     }
 }
 
