@@ -6,6 +6,7 @@
 //! Nothing outside `gui` depends on egui, eframe or wgpu.
 
 pub mod color;
+pub mod detect;
 pub mod eval;
 pub mod geometry;
 pub mod io;

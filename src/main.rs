@@ -12,6 +12,8 @@ use mlod::uncertainty::plane::{plane_fit_experiment, PlaneCase, PlaneFitConfig};
 use mlod::uncertainty::propagate::{covariance, extrinsic_covariance, worked_example};
 use mlod::uncertainty::{Linearization, Prior};
 
+mod cli_detect;
+
 #[derive(Parser)]
 #[command(
     name = "mlod",
@@ -60,9 +62,44 @@ enum Command {
     Inspect(InspectArgs),
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
     PlaneFit(PlaneFitArgs),
+    /// Train the stage-1 detectors, or calibrate Result Fusion's temperatures.
+    #[command(subcommand)]
+    Train(cli_detect::TrainCommand),
+    /// Run a stage-1 detector (shipped weights) on one sample and print its boxes.
+    Detect(cli_detect::DetectArgs),
     /// Score predictions against a dataset's ground truth: KITTI-style AP_3D as the paper reports it
     /// (§V-A-2, in percent) and Lyft's official mAP (devkit footprint and exact footprint).
     Eval(EvalArgs),
+    /// The paper's Table I on a dataset: every stage-1 case run over the samples, car AP_3D
+    /// easy/moderate/hard at IoU 0.7 and 0.5, as a Markdown table (and JSON with --out).
+    Table1(Table1Args),
+}
+
+#[derive(clap::Args)]
+struct Table1Args {
+    /// A Lyft-format dataset (the held-out test split).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Only these cases (comma separated; default: all six).
+    #[arg(long, value_delimiter = ',')]
+    cases: Vec<mlod::detect::Case>,
+    /// Evaluate only the first N samples.
+    #[arg(long)]
+    samples: Option<usize>,
+    /// α of the perturbation of the auxiliary LiDARs (one draw for the whole split).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
+    alpha: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write every case's whole evaluation report here as JSON (atomically).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Record each trained model's figures as `test_ap` in the models' manifest.json.
+    #[arg(long)]
+    update_manifest: bool,
 }
 
 #[derive(clap::Args)]
@@ -72,8 +109,21 @@ struct EvalArgs {
     dataset: PathBuf,
     /// Predictions: a JSON list in the Lyft devkit format (sample_token, translation [global],
     /// size [w,l,h], rotation [w,x,y,z], name, score).
+    #[arg(long, required_unless_present = "case", conflicts_with = "case")]
+    pred: Option<PathBuf>,
+    /// Instead of --pred: run this stage-1 detector (shipped weights) over the samples.
     #[arg(long)]
-    pred: PathBuf,
+    case: Option<mlod::detect::Case>,
+    /// With --case: α of the perturbation injected into the auxiliary LiDARs (one draw, the same
+    /// mis-calibration for every sample, as on one car).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
+    alpha: f64,
+    /// With --case: seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// With --case: models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
     /// Evaluate only the first N samples of the dataset.
     #[arg(long)]
     samples: Option<usize>,
@@ -541,6 +591,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
         session,
         synchronous: false,
         measure_frames: None,
+        models: None,
     })
 }
 
@@ -606,8 +657,129 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Inspect(a)) => inspect(a),
         Some(Command::Fuse(a)) => fuse_cmd(a),
         Some(Command::Synth(a)) => synth(a),
+        Some(Command::Train(c)) => cli_detect::train(c),
+        Some(Command::Detect(a)) => cli_detect::detect(a),
         Some(Command::Eval(a)) => eval_cmd(a),
+        Some(Command::Table1(a)) => table1_cmd(a),
     }
+}
+
+/// Runs a shipped detector over `tokens` (samples in parallel) and evaluates it.
+fn run_case(
+    dataset: &mlod::lyft::Dataset,
+    tokens: &[String],
+    models: &std::path::Path,
+    case: mlod::detect::Case,
+    params: &mlod::pipeline::FuseParams,
+    opts: &mlod::eval::EvalOptions,
+) -> Result<mlod::eval::EvalReport> {
+    use rayon::prelude::*;
+    let detector = mlod::detect::model::load_detector(models, case)?;
+    let bar = indicatif::ProgressBar::new(tokens.len() as u64);
+    let dets = tokens
+        .par_iter()
+        .map(|tok| -> Result<(String, Vec<mlod::detect::Detection>)> {
+            let frame = dataset.frame(tok)?;
+            let d = detector
+                .detect(&frame, params)
+                .with_context(|| format!("{} on sample {tok}", case.paper_name()))?;
+            bar.inc(1);
+            Ok((tok.clone(), d))
+        })
+        .collect::<Result<std::collections::HashMap<_, _>>>()?;
+    bar.finish_and_clear();
+    Ok(mlod::eval::evaluate_detections(dataset, &dets, opts)?)
+}
+
+fn table1_cmd(args: Table1Args) -> Result<()> {
+    use mlod::detect::Case;
+    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    let opts = mlod::eval::EvalOptions {
+        samples: args.samples,
+        ..Default::default()
+    };
+    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    let models = args
+        .models
+        .clone()
+        .unwrap_or_else(mlod::detect::weights::default_models_dir);
+    let params = mlod::pipeline::FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
+        ..Default::default()
+    };
+    let cases = if args.cases.is_empty() {
+        Case::ALL.to_vec()
+    } else {
+        args.cases.clone()
+    };
+    let mut reports = serde_json::Map::new();
+    let mut rows = Vec::new();
+    for case in cases {
+        let start = std::time::Instant::now();
+        let report = run_case(&dataset, &tokens, &models, case, &params, &opts)?;
+        let car = report.kitti.0.iter().find(|(k, _)| k == "car").map(|(_, v)| v);
+        let cell = |t: &str, d: &str| -> Option<f64> {
+            car.and_then(|c| c.get(t))
+                .and_then(|m| m.get(d))
+                .copied()
+                .flatten()
+        };
+        let figures: Vec<(String, Option<f64>)> = ["iou_0.7", "iou_0.5"]
+            .iter()
+            .flat_map(|t| ["easy", "moderate", "hard"].map(|d| (format!("{d}_ap3d_{}", &t[4..]), cell(t, d))))
+            .collect();
+        eprintln!(
+            "{}: {} samples in {:.0} s",
+            case.paper_name(),
+            report.samples,
+            start.elapsed().as_secs_f64()
+        );
+        rows.push((case, figures));
+        reports.insert(case.as_str().to_string(), serde_json::to_value(&report)?);
+    }
+    println!(
+        "Car AP_3D (%), R40, {} samples of {}, α = {}",
+        tokens.len(),
+        args.dataset.display(),
+        args.alpha
+    );
+    println!();
+    println!("| Method | Easy@0.7 | Mod.@0.7 | Hard@0.7 | Easy@0.5 | Mod.@0.5 | Hard@0.5 |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for (case, figures) in &rows {
+        let cells: Vec<String> = figures
+            .iter()
+            .map(|(_, v)| v.map_or_else(|| "–".to_string(), |x| format!("{x:.2}")))
+            .collect();
+        println!("| {} | {} |", case.paper_name(), cells.join(" | "));
+    }
+    if let Some(out) = &args.out {
+        let doc = serde_json::json!({
+            "dataset": args.dataset,
+            "samples": tokens.len(),
+            "alpha": args.alpha,
+            "seed": args.seed,
+            "reports": reports,
+        });
+        mlod::io::write_atomic(
+            out,
+            format!("{}\n", serde_json::to_string_pretty(&doc)?).as_bytes(),
+        )?;
+    }
+    if args.update_manifest {
+        let mut manifest = mlod::detect::Manifest::load(&models)?;
+        for (case, figures) in &rows {
+            if let Some(entry) = manifest.models.get_mut(case) {
+                entry.test_ap = figures
+                    .iter()
+                    .filter_map(|(k, v)| v.map(|v| (k.clone(), v)))
+                    .collect();
+            }
+        }
+        manifest.save(&models)?;
+        eprintln!("test_ap recorded in {}", models.join("manifest.json").display());
+    }
+    Ok(())
 }
 
 fn eval_cmd(args: EvalArgs) -> Result<()> {
@@ -631,15 +803,28 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         });
     }
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    let Some(pred_path) = &args.pred else {
+        let case = args.case.context("give --pred FILE or --case CASE")?;
+        let models = args
+            .models
+            .clone()
+            .unwrap_or_else(mlod::detect::weights::default_models_dir);
+        let params = mlod::pipeline::FuseParams {
+            perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
+            ..Default::default()
+        };
+        let report = run_case(&dataset, &tokens, &models, case, &params, &opts)?;
+        return print_eval(&args, &report);
+    };
     let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();
-    let raw = mlod::eval::read_predictions(&args.pred)?;
+    let raw = mlod::eval::read_predictions(pred_path)?;
     let preds = mlod::eval::parse_predictions(&raw, &known);
     if !preds.rejected.is_empty() {
         eprintln!(
             "warning: {} of {} predictions in {} rejected and skipped; first:",
             preds.rejected.len(),
             preds.total,
-            args.pred.display()
+            pred_path.display()
         );
         for r in preds.rejected.iter().take(5) {
             let tok = r.sample_token.as_deref().unwrap_or("?");
@@ -647,7 +832,11 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         }
     }
     let report = mlod::eval::evaluate(&dataset, &preds, &opts)?;
-    let json = serde_json::to_string_pretty(&report)?;
+    print_eval(&args, &report)
+}
+
+fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()> {
+    let json = serde_json::to_string_pretty(report)?;
     if let Some(out) = &args.out {
         mlod::io::write_atomic(out, format!("{json}\n").as_bytes())?;
     }

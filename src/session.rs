@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::color::ColorParams;
+use crate::detect::Case;
 use crate::io::{write_atomic, IoError};
 use crate::lyft::LidarChannel;
 use crate::pipeline::FuseParams;
@@ -52,6 +53,36 @@ pub struct Session {
     pub show_ground_truth: bool,
     /// Point size in UI points.
     pub point_size: f32,
+    /// Stage-1 detection settings (what the Detection panel shows).
+    #[serde(default)]
+    pub detection: DetectionSettings,
+}
+
+/// The Detection panel's settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DetectionSettings {
+    /// Which stage-1 case the Run button runs.
+    pub case: Case,
+    /// Run the detector again after every change of sample or perturbation.
+    pub auto_run: bool,
+    /// Proposals are drawn from this score up (the matching uses all of them).
+    pub min_score: f32,
+    /// 3D IoU a proposal needs to count as a true positive.
+    pub match_iou: f64,
+    pub show: bool,
+}
+
+impl Default for DetectionSettings {
+    fn default() -> Self {
+        Self {
+            case: Case::Input,
+            auto_run: false,
+            min_score: 0.3,
+            match_iou: 0.7,
+            show: true,
+        }
+    }
 }
 
 impl Session {
@@ -68,6 +99,7 @@ impl Session {
             visible: BTreeMap::new(),
             show_ground_truth: true,
             point_size: 2.0,
+            detection: DetectionSettings::default(),
         }
     }
 
@@ -133,6 +165,19 @@ impl Session {
             return Err(bad(
                 "point_size",
                 format!("{} (must be in 0.5..=50)", self.point_size),
+            ));
+        }
+        let d = &self.detection;
+        if !d.min_score.is_finite() || !(0.0..=1.0).contains(&d.min_score) {
+            return Err(bad(
+                "detection.min_score",
+                format!("{} (must be in 0..=1)", d.min_score),
+            ));
+        }
+        if !(d.match_iou.is_finite() && d.match_iou > 0.0 && d.match_iou <= 1.0) {
+            return Err(bad(
+                "detection.match_iou",
+                format!("{} (must be in (0, 1])", d.match_iou),
             ));
         }
         if let Some(c) = &self.camera {
@@ -209,6 +254,21 @@ mod tests {
         std::fs::write(&path, text).unwrap();
         let e = Session::load(&path).unwrap_err().to_string();
         assert!(e.contains("alpha"), "{e}");
+        // Detection settings: an absurd score names its field; files from before they existed load
+        // with the defaults.
+        let text = serde_json::to_string(&s)
+            .unwrap()
+            .replace("\"min_score\":0.3", "\"min_score\":7.0");
+        std::fs::write(&path, text).unwrap();
+        let e = Session::load(&path).unwrap_err().to_string();
+        assert!(e.contains("detection.min_score"), "{e}");
+        let mut v = serde_json::to_value(&s).unwrap();
+        v.as_object_mut().unwrap().remove("detection");
+        std::fs::write(&path, v.to_string()).unwrap();
+        assert_eq!(
+            Session::load(&path).unwrap().detection,
+            DetectionSettings::default()
+        );
         assert!(Session::load(&dir.join("missing.json"))
             .unwrap_err()
             .to_string()

@@ -340,3 +340,49 @@ fn eval_prints_the_issue_json_shape_and_rejects_bad_files() {
     assert!(!out.status.success());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn table1_agrees_with_eval_case_and_detect() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let data = format!("{root}/sample_data");
+    let dir = std::env::temp_dir().join(format!("mlod-cli-table1-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("tmp");
+    let out_file = dir.join("table1.json");
+    let out = mlod(&[
+        "table1",
+        "--dataset",
+        &data,
+        "--cases",
+        "top",
+        "--samples",
+        "2",
+        "--out",
+        out_file.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("| LiDAR-Top |"), "{table}");
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&out_file).expect("--out written")).expect("JSON");
+    let eval = json(&[
+        "eval",
+        "--dataset",
+        &data,
+        "--case",
+        "top",
+        "--samples",
+        "2",
+        "--json",
+    ]);
+    assert_eq!(written["reports"]["top"]["kitti"], eval["kitti"]);
+    assert_eq!(written["samples"], 2);
+    // The Markdown cell is the JSON figure, rounded.
+    let m = eval["kitti"]["car"]["iou_0.7"]["moderate"]
+        .as_f64()
+        .expect("car AP");
+    assert!(table.contains(&format!("{m:.2}")), "{table}");
+    // An unknown case is a usage error, not a panic.
+    let bad = mlod(&["table1", "--dataset", &data, "--cases", "lidar9"]);
+    assert!(!bad.status.success());
+    let _ = std::fs::remove_dir_all(&dir);
+}

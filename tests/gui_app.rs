@@ -6,12 +6,17 @@ use egui::accesskit::Role;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use mlod::color::ColorMode;
+use mlod::detect::Case;
 use mlod::gui::viewport::View;
 use mlod::gui::{default_dataset, AppOptions, MlodApp};
 use mlod::session::Session;
 use mlod::uncertainty::Perturbation;
 
 fn harness(session: Option<Session>) -> Harness<'static, MlodApp> {
+    harness_with(session, None)
+}
+
+fn harness_with(session: Option<Session>, models: Option<std::path::PathBuf>) -> Harness<'static, MlodApp> {
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
         .wgpu()
@@ -23,6 +28,7 @@ fn harness(session: Option<Session>) -> Harness<'static, MlodApp> {
                     session,
                     synchronous: true,
                     measure_frames: None,
+                    models,
                 },
             )
         });
@@ -131,6 +137,7 @@ fn bad_dataset_keeps_the_window_up_with_an_error() {
                     session: None,
                     synchronous: true,
                     measure_frames: None,
+                    models: None,
                 },
             )
         });
@@ -179,6 +186,86 @@ fn hovering_a_ground_truth_box_shows_its_tooltip() {
     assert!(h.query_by_label_contains("mean tr(Ξ) inside").is_some());
 }
 
+#[test]
+fn run_button_draws_proposals_matched_against_the_ground_truth() {
+    let mut s = session_at(0.0, ColorMode::Source);
+    s.detection.case = Case::Top;
+    let mut h = harness(Some(s));
+    assert!(h.state().detection().is_none());
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let (view, counts) = h.state().detection().expect("the detector ran");
+    assert_eq!(view.case, Case::Top);
+    assert_eq!(view.token, h.state().frame().unwrap().sample_token);
+    assert!(counts.shown > 0 && counts.true_positives > 0, "{counts:?}");
+    assert_eq!(counts.true_positives + counts.false_positives, counts.shown);
+    // Car-only model: only the cars count as missed; every car is either matched or missed.
+    let cars = h
+        .state()
+        .frame()
+        .unwrap()
+        .boxes
+        .iter()
+        .filter(|b| b.category == "car")
+        .count();
+    assert_eq!(counts.ground_truth, cars);
+    assert_eq!(counts.missed + counts.true_positives, cars);
+    // The panel reports the same counts the app computed.
+    assert!(h
+        .query_by_label_contains(&format!("{} TP", counts.true_positives))
+        .is_some());
+    assert!(!h.state().detection_is_stale());
+    h.state_mut().set_preset(View::Bev);
+    h.run_steps(2);
+    h.snapshot("detections_top_bev");
+    // Raising the match IoU can only turn true positives into false positives.
+    let tp_07 = counts.true_positives;
+    h.state_mut().session_mut().detection.match_iou = 0.5;
+    h.state_mut().rematch();
+    let (_, c05) = h.state().detection().unwrap();
+    assert!(c05.true_positives >= tp_07);
+    // Moving α makes the result stale (it was computed on the unperturbed cloud).
+    h.state_mut().session_mut().fuse.perturbation = Perturbation::new(0.04, 0).unwrap();
+    h.state_mut().mark_fuse();
+    h.run_steps(2);
+    assert!(h.state().detection_is_stale());
+    assert!(h.query_by_label_contains("Run again").is_some());
+}
+
+#[test]
+fn auto_run_follows_the_perturbation() {
+    let mut s = session_at(0.0, ColorMode::Trace);
+    s.detection.case = Case::Input;
+    s.detection.auto_run = true;
+    let mut h = harness(Some(s));
+    let before = h
+        .state()
+        .detection()
+        .expect("auto-run on load")
+        .0
+        .detections
+        .clone();
+    h.state_mut().session_mut().fuse.perturbation = Perturbation::new(0.1, 0).unwrap();
+    h.state_mut().mark_fuse();
+    h.run_steps(3);
+    assert!(!h.state().detection_is_stale());
+    let after = &h.state().detection().unwrap().0.detections;
+    assert_ne!(&before, after, "Input Fusion sees the perturbed auxiliary LiDARs");
+}
+
+#[test]
+fn missing_weights_are_an_error_and_keep_the_cloud() {
+    let mut h = harness_with(None, Some("/nonexistent/models".into()));
+    h.state_mut().run_detector();
+    h.run_steps(3);
+    assert!(h.state().detection().is_none());
+    assert!(h.state().fused().is_some(), "the cloud stays");
+    assert!(
+        h.query_by_label_contains("/nonexistent/models").is_some(),
+        "the error names the folder"
+    );
+}
+
 /// Writes the sessions behind `screenshots/*.png` (run by `screenshots/make.sh`).
 #[test]
 #[ignore]
@@ -223,4 +310,15 @@ fn write_screenshot_sessions() {
     h.state_mut().set_preset(View::Bev);
     h.run_steps(2);
     save(&h, "bev");
+    // Stage-1 detection: Input Fusion at α = 0.04 run on load, proposals (blue, false positives
+    // greyed) over the ground truth (green), chase view over the cars ahead.
+    let mut s = session_at(0.04, ColorMode::Height);
+    s.color.scale = mlod::color::Scale::Linear;
+    s.auto_range = true;
+    s.detection.case = Case::Input;
+    s.detection.auto_run = true;
+    let mut h = harness(Some(s));
+    h.state_mut().set_preset(View::Chase);
+    h.run_steps(2);
+    save(&h, "detections");
 }

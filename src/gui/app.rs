@@ -10,10 +10,14 @@ use std::time::Instant;
 use eframe::egui;
 use egui::{Color32, RichText};
 
-use super::jobs::{JobResult, Jobs};
+use super::jobs::{DetectRequest, JobResult, Jobs};
 use super::panels;
 use super::viewport::{self, box_lines, grid_lines, Camera, Projection, SceneHandle, View, Viewport};
 use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
+use crate::detect::weights::default_models_dir;
+use crate::detect::{Case, Detection, Detector};
+use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
+use crate::geometry::IouKind;
 use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::pipeline::{box_stats, fuse, BoxStats, FusedCloud};
 use crate::session::{CameraPose, Session};
@@ -30,6 +34,9 @@ pub struct AppOptions {
     /// Measure the window: repaint continuously for this many frames, print the frame times to
     /// stderr and close (`mlod gui --measure-frames N`).
     pub measure_frames: Option<usize>,
+    /// Folder of the stage-1 weights and their manifest (default: `$MLOD_MODELS`, else the
+    /// crate's `assets/models`).
+    pub models: Option<PathBuf>,
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -41,6 +48,41 @@ pub struct Toast {
 
 /// Ground-truth box colour (paper: green).
 pub const GT_COLOR: [u8; 4] = [70, 230, 110, 255];
+/// Stage-1 proposal colour (paper: blue); a true positive.
+pub const PROPOSAL_COLOR: [u8; 4] = [70, 150, 255, 255];
+/// A proposal that matches no ground truth (false positive): a greyed blue.
+pub const FALSE_POSITIVE_COLOR: [u8; 4] = [150, 160, 200, 255];
+
+/// The last stage-1 detection run on the sample on screen, matched against its ground truth.
+#[derive(Debug, Clone)]
+pub struct DetectionView {
+    pub case: Case,
+    pub token: String,
+    /// The fuse generation it was computed at; older than the app's: stale (α changed since).
+    pub generation: u64,
+    /// Highest score first.
+    pub detections: Vec<Detection>,
+    /// Per detection: TP (with its GT and IoU), FP or ignored, at the session's match IoU.
+    pub outcomes: Vec<PredOutcome>,
+    /// Per ground-truth box of the frame: matched or missed; ignored when the detector does not
+    /// output its category.
+    pub gt_outcomes: Vec<GtOutcome>,
+    /// The categories the detector outputs.
+    pub categories: Vec<String>,
+    pub millis: f64,
+}
+
+/// Counts shown in the Detection panel (drawn proposals only, i.e. score ≥ min score).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DetectionCounts {
+    pub shown: usize,
+    pub true_positives: usize,
+    pub false_positives: usize,
+    /// Ground-truth boxes of the detector's categories, and how many of them no drawn proposal
+    /// matched.
+    pub ground_truth: usize,
+    pub missed: usize,
+}
 const HISTOGRAM_BINS: usize = 64;
 const RECENT_KEY: &str = "mlod_recent_datasets";
 
@@ -74,6 +116,14 @@ pub struct MlodApp {
     pub(crate) show_timings: bool,
     measure: Option<(usize, Vec<Instant>)>,
     viewport_rect: egui::Rect,
+    /// Bumped on every re-fuse: a detection made at an older generation is stale.
+    fuse_generation: u64,
+    detectors: BTreeMap<Case, Arc<dyn Detector>>,
+    pub(crate) detection: Option<DetectionView>,
+    detect_in_flight: bool,
+    detect_again: bool,
+    pub(crate) hovered_detection: Option<usize>,
+    models_dir: PathBuf,
 }
 
 impl MlodApp {
@@ -128,6 +178,17 @@ impl MlodApp {
             show_timings: !options.synchronous,
             viewport_rect: egui::Rect::NOTHING,
             measure: options.measure_frames.map(|n| (n, Vec::with_capacity(n + 1))),
+            fuse_generation: 0,
+            detectors: BTreeMap::new(),
+            detection: None,
+            detect_in_flight: false,
+            detect_again: false,
+            hovered_detection: None,
+            models_dir: options
+                .models
+                .clone()
+                .or_else(|| std::env::var_os("MLOD_MODELS").map(PathBuf::from))
+                .unwrap_or_else(default_models_dir),
             session,
         };
         let path = app.session.dataset.clone();
@@ -176,16 +237,20 @@ impl MlodApp {
     /// Applies finished jobs. Errors keep the last good state and become toasts.
     pub fn process_jobs(&mut self, now: f64) {
         // A finished job may start another (dataset -> its first frame): drain until quiet.
+        // (In synchronous mode a re-fuse may itself finish a job: a detector run.)
         loop {
             let results = self.jobs.poll();
-            if results.is_empty() {
-                break;
+            if !results.is_empty() {
+                self.apply_results(results, now);
+                continue;
             }
-            self.apply_results(results, now);
+            if self.needs_fuse {
+                self.refuse(now);
+                continue;
+            }
+            break;
         }
-        if self.needs_fuse {
-            self.refuse(now);
-        } else if self.needs_color {
+        if self.needs_color {
             self.recolor();
         }
         if !self.camera_from_session && self.fused.is_some() {
@@ -241,6 +306,9 @@ impl MlodApp {
                                 });
                             }
                             self.ego_heading = ego_heading(&frame);
+                            if self.detection.as_ref().is_some_and(|d| d.token != token) {
+                                self.detection = None;
+                            }
                             self.session.sample_token = Some(token);
                             self.frame = Some(frame);
                             self.frame_ms = millis;
@@ -249,8 +317,184 @@ impl MlodApp {
                         Err(e) => self.toast(now, format!("cannot load sample {token}: {e}"), true),
                     }
                 }
+                JobResult::Detect {
+                    token,
+                    generation,
+                    case,
+                    result,
+                    millis,
+                } => {
+                    self.detect_in_flight = false;
+                    match result {
+                        Ok(out) => {
+                            let on_screen = self.frame.as_ref().is_some_and(|f| f.sample_token == token);
+                            if on_screen {
+                                let categories = out.detector.categories();
+                                self.detection = Some(self.match_detections(
+                                    case,
+                                    token,
+                                    generation,
+                                    out.detections,
+                                    categories,
+                                    millis,
+                                ));
+                                self.rebuild_lines();
+                            }
+                            self.detectors.insert(case, out.detector);
+                        }
+                        Err(e) => {
+                            self.detect_again = false;
+                            self.toast(now, format!("cannot run {}: {e}", case.paper_name()), true);
+                        }
+                    }
+                    if std::mem::take(&mut self.detect_again) {
+                        self.run_detector();
+                    }
+                }
             }
         }
+    }
+
+    /// Runs the session's stage-1 detector on the sample on screen, in the background. A request
+    /// while one is running is remembered and run once that one is back (latest state wins).
+    pub fn run_detector(&mut self) {
+        let Some(frame) = self.frame.clone() else { return };
+        if self.detect_in_flight {
+            self.detect_again = true;
+            return;
+        }
+        let case = self.session.detection.case;
+        self.detect_in_flight = true;
+        self.jobs.detect(DetectRequest {
+            frame,
+            params: self.session.fuse.clone(),
+            generation: self.fuse_generation,
+            case,
+            cached: self.detectors.get(&case).cloned(),
+            models: self.models_dir.clone(),
+        });
+    }
+
+    /// Whether a detector run is in flight.
+    pub fn is_detecting(&self) -> bool {
+        self.detect_in_flight
+    }
+
+    /// Whether the detection on screen was made before the last change of perturbation.
+    pub fn detection_is_stale(&self) -> bool {
+        self.detection
+            .as_ref()
+            .is_some_and(|d| d.generation != self.fuse_generation || d.case != self.session.detection.case)
+    }
+
+    fn match_detections(
+        &self,
+        case: Case,
+        token: String,
+        generation: u64,
+        detections: Vec<Detection>,
+        categories: Vec<String>,
+        millis: f64,
+    ) -> DetectionView {
+        let gts: Vec<Detection> = self
+            .frame
+            .as_ref()
+            .map(|f| {
+                f.boxes
+                    .iter()
+                    .map(|b| Detection {
+                        box3d: b.box3d,
+                        score: 1.0,
+                        category: b.category.clone(),
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        let rule = MatchRule {
+            iou_threshold: self.session.detection.match_iou,
+            kind: IouKind::ThreeD,
+            max_range: f64::INFINITY,
+        };
+        // Match the operating point on screen: only the drawn proposals (score ≥ min score).
+        let min = self.session.detection.min_score;
+        let kept: Vec<usize> = (0..detections.len())
+            .filter(|&i| detections[i].score >= min)
+            .collect();
+        let shown: Vec<Detection> = kept.iter().map(|&i| detections[i].clone()).collect();
+        // Ground truth of classes the detector does not output is matched by nothing and ignored.
+        let known: Vec<usize> = (0..gts.len())
+            .filter(|&j| categories.contains(&gts[j].category))
+            .collect();
+        let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
+        let m = match_sample(&shown, &known_gts, &rule);
+        let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
+        for (k, o) in kept.iter().zip(m.preds) {
+            outcomes[*k] = o;
+        }
+        let gt_outcomes = m
+            .gts
+            .into_iter()
+            .map(|g| match g {
+                GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
+                    pred: kept[pred],
+                    iou,
+                },
+                other => other,
+            })
+            .collect();
+        DetectionView {
+            case,
+            token,
+            generation,
+            detections,
+            outcomes,
+            gt_outcomes,
+            categories,
+            millis,
+        }
+    }
+
+    /// Re-matches the detection on screen (after the match IoU or the min score changed).
+    pub fn rematch(&mut self) {
+        if let Some(d) = self.detection.take() {
+            self.detection = Some(self.match_detections(
+                d.case,
+                d.token,
+                d.generation,
+                d.detections,
+                d.categories,
+                d.millis,
+            ));
+        }
+        self.rebuild_lines();
+    }
+
+    /// The detection on screen and its counts (drawn proposals: score ≥ the session's min score).
+    pub fn detection(&self) -> Option<(&DetectionView, DetectionCounts)> {
+        let d = self.detection.as_ref()?;
+        let min = self.session.detection.min_score;
+        let mut c = DetectionCounts {
+            shown: d.detections.iter().filter(|x| x.score >= min).count(),
+            ..Default::default()
+        };
+        for o in &d.outcomes {
+            match o {
+                PredOutcome::TruePositive { .. } => c.true_positives += 1,
+                PredOutcome::FalsePositive { .. } => c.false_positives += 1,
+                PredOutcome::Ignored => {}
+            }
+        }
+        c.missed = d
+            .gt_outcomes
+            .iter()
+            .filter(|g| matches!(g, GtOutcome::Missed))
+            .count();
+        c.ground_truth = d
+            .gt_outcomes
+            .iter()
+            .filter(|g| !matches!(g, GtOutcome::Ignored))
+            .count();
+        Some((d, c))
     }
 
     /// A preset view, turned so that the ego car's front is "forward" in it.
@@ -273,7 +517,8 @@ impl MlodApp {
         }
     }
 
-    pub(crate) fn mark_fuse(&mut self) {
+    /// Re-fuse (and re-colour) on the next frame: call after editing the session's perturbation.
+    pub fn mark_fuse(&mut self) {
         self.needs_fuse = true;
     }
 
@@ -295,7 +540,11 @@ impl MlodApp {
                     .map(|l| (l.channel, l.noise))
                     .collect();
                 self.fused = Some(cloud);
+                self.fuse_generation += 1;
                 self.rebuild_scene();
+                if self.session.detection.auto_run {
+                    self.run_detector();
+                }
                 self.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
             }
             Err(e) => self.toast(now, format!("cannot fuse: {e}"), true),
@@ -380,6 +629,19 @@ impl MlodApp {
                 }
             }
         }
+        let settings = self.session.detection;
+        if let Some(d) = self.detection.as_ref().filter(|_| settings.show) {
+            for (det, o) in d.detections.iter().zip(&d.outcomes) {
+                if det.score < settings.min_score {
+                    continue;
+                }
+                let color = match o {
+                    PredOutcome::FalsePositive { .. } => FALSE_POSITIVE_COLOR,
+                    _ => PROPOSAL_COLOR,
+                };
+                lines.extend(box_lines(det.box3d.corners(), color, true));
+            }
+        }
         self.scene.set_lines(lines);
     }
 
@@ -427,6 +689,11 @@ impl MlodApp {
         &self.session
     }
 
+    /// The session state, to edit (then [`Self::mark_fuse`] or [`Self::rematch`]).
+    pub fn session_mut(&mut self) -> &mut Session {
+        &mut self.session
+    }
+
     /// |P_u|/|P| of the fused cloud and the histogram the colour panel shows.
     pub fn uncertainty_summary(&self) -> (f64, &[u32]) {
         (self.uncertain_fraction, &self.histogram)
@@ -445,12 +712,15 @@ impl MlodApp {
 
     /// Whether a load is still running (tests wait on this).
     pub fn is_busy(&self) -> bool {
-        self.jobs.running() > 0 || self.needs_fuse
+        self.jobs.running() > 0 || self.needs_fuse || self.detect_in_flight
     }
 
     fn handle_keys(&mut self, ctx: &egui::Context) {
         if ctx.egui_wants_keyboard_input() {
             return;
+        }
+        if ctx.input(|i| i.key_pressed(egui::Key::D)) {
+            self.run_detector();
         }
         let (left, right, help, esc, bev) = ctx.input(|i| {
             (
@@ -550,53 +820,111 @@ impl MlodApp {
             }
         }
         self.hovered_box = None;
+        self.hovered_detection = None;
         let Some(pointer) = out.response.hover_pos() else {
             return;
         };
         let (Some(frame), Some(cloud)) = (&self.frame, &self.fused) else {
             return;
         };
-        if !self.session.show_ground_truth {
-            return;
-        }
         let rect = out.response.rect;
-        let mut best: Option<(usize, f32)> = None;
-        for (bi, b) in frame.boxes.iter().enumerate() {
-            let pts: Vec<egui::Pos2> = b
-                .box3d
-                .corners()
+        let camera = &self.view.camera;
+        // The box under the pointer with the smallest screen rectangle; GT and proposals compete.
+        let screen_rect = |corners: [[f64; 3]; 8]| -> Option<egui::Rect> {
+            let pts: Vec<egui::Pos2> = corners
                 .iter()
-                .filter_map(|c| {
-                    self.view
-                        .camera
-                        .project([c[0] as f32, c[1] as f32, c[2] as f32], rect)
-                })
+                .filter_map(|c| camera.project([c[0] as f32, c[1] as f32, c[2] as f32], rect))
                 .collect();
-            if pts.len() < 8 {
-                continue;
+            (pts.len() == 8).then(|| egui::Rect::from_points(&pts))
+        };
+        let mut best: Option<(Hovered, f32)> = None;
+        let mut consider = |h: Hovered, r: Option<egui::Rect>| {
+            if let Some(r) = r {
+                if r.contains(pointer) && best.is_none_or(|(_, a)| r.area() < a) {
+                    best = Some((h, r.area()));
+                }
             }
-            let r = egui::Rect::from_points(&pts);
-            if r.contains(pointer) && best.is_none_or(|(_, a)| r.area() < a) {
-                best = Some((bi, r.area()));
+        };
+        if self.session.show_ground_truth {
+            for (bi, b) in frame.boxes.iter().enumerate() {
+                consider(Hovered::Truth(bi), screen_rect(b.box3d.corners()));
             }
         }
-        let Some((bi, _)) = best else { return };
-        let b = &frame.boxes[bi];
-        let stats = box_stats(cloud, &b.box3d);
-        self.hovered_box = Some((bi, stats));
-        let [l, w, h] = b.box3d.size_lwh;
-        out.response.on_hover_ui_at_pointer(|ui| {
-            ui.strong(format!("ground truth: {}", b.category));
-            ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
-            ui.label(format!("distance  {:.1} m", b.box3d.bev_range()));
-            ui.label(format!("points inside  {}", stats.points));
-            ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
-            ui.label(format!(
-                "uncertain (tr Ξ > 0.05)  {:.0} %",
-                100.0 * stats.uncertain_fraction
-            ));
-        });
+        let settings = self.session.detection;
+        if let Some(d) = self.detection.as_ref().filter(|_| settings.show) {
+            for (i, det) in d.detections.iter().enumerate() {
+                if det.score >= settings.min_score {
+                    consider(Hovered::Proposal(i), screen_rect(det.box3d.corners()));
+                }
+            }
+        }
+        match best {
+            Some((Hovered::Truth(bi), _)) => {
+                let b = &frame.boxes[bi];
+                let stats = box_stats(cloud, &b.box3d);
+                self.hovered_box = Some((bi, stats));
+                let [l, w, h] = b.box3d.size_lwh;
+                let matched = self
+                    .detection
+                    .as_ref()
+                    .and_then(|d| d.gt_outcomes.get(bi).copied());
+                out.response.on_hover_ui_at_pointer(|ui| {
+                    ui.strong(format!("ground truth: {}", b.category));
+                    ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
+                    ui.label(format!("distance  {:.1} m", b.box3d.bev_range()));
+                    ui.label(format!("points inside  {}", stats.points));
+                    ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
+                    ui.label(format!(
+                        "uncertain (tr Ξ > 0.05)  {:.0} %",
+                        100.0 * stats.uncertain_fraction
+                    ));
+                    match matched {
+                        Some(GtOutcome::Matched { iou, .. }) => {
+                            ui.label(format!("detected: 3D IoU {iou:.2}"));
+                        }
+                        Some(GtOutcome::Missed) => {
+                            ui.label("missed by the detector");
+                        }
+                        _ => {}
+                    }
+                });
+            }
+            Some((Hovered::Proposal(i), _)) => {
+                self.hovered_detection = Some(i);
+                let Some(d) = self.detection.as_ref() else { return };
+                let det = &d.detections[i];
+                let stats = box_stats(cloud, &det.box3d);
+                let [l, w, h] = det.box3d.size_lwh;
+                let outcome = d.outcomes[i];
+                let case = d.case;
+                out.response.on_hover_ui_at_pointer(|ui| {
+                    ui.strong(format!("proposal ({}): {}", case.paper_name(), det.category));
+                    ui.label(format!("score  {:.3}", det.score));
+                    ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
+                    ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));
+                    ui.label(format!("points inside  {}", stats.points));
+                    ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
+                    match outcome {
+                        PredOutcome::TruePositive { iou, .. } => {
+                            ui.label(format!("true positive: 3D IoU {iou:.2}"));
+                        }
+                        PredOutcome::FalsePositive { best_iou } => {
+                            ui.label(format!("false positive: best 3D IoU {best_iou:.2}"));
+                        }
+                        PredOutcome::Ignored => {}
+                    }
+                });
+            }
+            None => {}
+        }
     }
+}
+
+/// What the pointer is over.
+#[derive(Debug, Clone, Copy)]
+enum Hovered {
+    Truth(usize),
+    Proposal(usize),
 }
 
 impl MlodApp {

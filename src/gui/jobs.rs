@@ -7,7 +7,28 @@ use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 
+use crate::detect::model::load_detector;
+use crate::detect::{Case, Detection, Detector};
 use crate::lyft::{Dataset, Frame, SampleSummary};
+use crate::pipeline::FuseParams;
+
+/// A detector run: the shipped model of `case` on one frame fused with `params`.
+pub struct DetectRequest {
+    pub frame: Arc<Frame>,
+    pub params: FuseParams,
+    /// The app's fuse generation the request was made at (a later one makes the result stale).
+    pub generation: u64,
+    pub case: Case,
+    /// The already-loaded detector of this case, if any.
+    pub cached: Option<Arc<dyn Detector>>,
+    pub models: PathBuf,
+}
+
+/// What a detector run gives back.
+pub struct DetectOutput {
+    pub detector: Arc<dyn Detector>,
+    pub detections: Vec<Detection>,
+}
 
 /// A finished job.
 pub enum JobResult {
@@ -18,6 +39,13 @@ pub enum JobResult {
     Frame {
         token: String,
         result: Result<Arc<Frame>, String>,
+        millis: f64,
+    },
+    Detect {
+        token: String,
+        generation: u64,
+        case: Case,
+        result: Result<DetectOutput, String>,
         millis: f64,
     },
 }
@@ -82,6 +110,31 @@ impl Jobs {
             let result = dataset.frame(&token).map(Arc::new).map_err(|e| e.to_string());
             JobResult::Frame {
                 token,
+                result,
+                millis: start.elapsed().as_secs_f64() * 1e3,
+            }
+        });
+    }
+
+    /// Runs a stage-1 detector (loading its weights first if needed) on a worker thread.
+    pub fn detect(&mut self, req: DetectRequest) {
+        self.spawn(move || {
+            let start = std::time::Instant::now();
+            let token = req.frame.sample_token.clone();
+            let result = (|| {
+                let detector: Arc<dyn Detector> = match req.cached {
+                    Some(d) => d,
+                    None => Arc::from(load_detector(&req.models, req.case).map_err(|e| e.to_string())?),
+                };
+                let detections = detector
+                    .detect(&req.frame, &req.params)
+                    .map_err(|e| e.to_string())?;
+                Ok(DetectOutput { detector, detections })
+            })();
+            JobResult::Detect {
+                token,
+                generation: req.generation,
+                case: req.case,
                 result,
                 millis: start.elapsed().as_secs_f64() * 1e3,
             }

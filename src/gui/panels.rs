@@ -7,9 +7,10 @@ use std::path::PathBuf;
 use eframe::egui;
 use egui::{Color32, RichText, Sense, Stroke};
 
-use super::app::{channel_counts, lidar_label, MlodApp, GT_COLOR};
+use super::app::{channel_counts, lidar_label, MlodApp, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR};
 use super::viewport::{View, CONTROLS_HELP};
 use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
+use crate::detect::Case;
 use crate::lyft::LidarChannel;
 use crate::session::Session;
 use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
@@ -215,6 +216,8 @@ pub fn controls(app: &mut MlodApp, ui: &mut egui::Ui) {
     egui::ScrollArea::vertical().show(ui, |ui| {
         perturbation(app, ui);
         ui.separator();
+        detection(app, ui);
+        ui.separator();
         coloring(app, ui);
         ui.separator();
         view_controls(app, ui);
@@ -331,6 +334,99 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
 }
 
 /// Three labelled drag values in a row, each within ±`limit`; true if any changed.
+/// Stage-1 detection: pick a case, run it on the sample on screen, see its proposals matched
+/// against the ground truth.
+fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
+    ui.heading("Detection (stage 1)");
+    let mut run = false;
+    let mut rematch = false;
+    let mut redraw = false;
+    ui.horizontal(|ui| {
+        let d = &mut app.session.detection;
+        egui::ComboBox::new("mlod_detector_case", "case")
+            .selected_text(d.case.paper_name())
+            .show_ui(ui, |ui| {
+                for c in Case::ALL {
+                    ui.selectable_value(&mut d.case, c, c.paper_name());
+                }
+            });
+        let label = if app.is_detecting() {
+            "Running…"
+        } else {
+            "Run (D)"
+        };
+        run |= ui
+            .add_enabled(app.frame.is_some(), egui::Button::new(label))
+            .on_hover_text("Run the detector on this sample with the current perturbation")
+            .clicked();
+    });
+    let d = &mut app.session.detection;
+    ui.checkbox(&mut d.auto_run, "run again on every change")
+        .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
+    rematch |= ui
+        .add(egui::Slider::new(&mut d.min_score, 0.05..=0.95).text("min score"))
+        .changed();
+    ui.horizontal(|ui| {
+        ui.label("true positive at 3D IoU ≥");
+        rematch |= ui.radio_value(&mut d.match_iou, 0.5, "0.5").changed();
+        rematch |= ui.radio_value(&mut d.match_iou, 0.7, "0.7").changed();
+    });
+    redraw |= ui
+        .checkbox(
+            &mut d.show,
+            RichText::new("proposal boxes").color(color32(PROPOSAL_COLOR)),
+        )
+        .changed();
+    let stale = app.detection_is_stale();
+    match app.detection() {
+        Some((v, c)) => {
+            ui.horizontal_wrapped(|ui| {
+                ui.label(format!("{}:", v.case.paper_name()));
+                ui.label(format!("{} proposals", c.shown));
+                ui.label(RichText::new(format!("{} TP", c.true_positives)).color(color32(PROPOSAL_COLOR)));
+                ui.label(
+                    RichText::new(format!("{} FP", c.false_positives)).color(color32(FALSE_POSITIVE_COLOR)),
+                );
+                ui.label(
+                    RichText::new(format!(
+                        "{} of {} {} missed",
+                        c.missed,
+                        c.ground_truth,
+                        v.categories.join("/")
+                    ))
+                    .color(color32(GT_COLOR)),
+                );
+            });
+            if app.show_timings {
+                ui.label(
+                    RichText::new(format!(
+                        "{:.0} ms (weights, fuse, voxelise, network, NMS)",
+                        v.millis
+                    ))
+                    .weak(),
+                );
+            }
+            if stale {
+                ui.label(
+                    RichText::new("stale: the perturbation or the case changed since this run. Run again")
+                        .color(Color32::from_rgb(240, 190, 80)),
+                );
+            }
+        }
+        None => {
+            ui.label(RichText::new("no detection on this sample yet").weak());
+        }
+    }
+    if run {
+        app.run_detector();
+    }
+    if rematch {
+        app.rematch();
+    } else if redraw {
+        app.rebuild_lines();
+    }
+}
+
 fn drag_row(
     ui: &mut egui::Ui,
     values: &mut [f64; 3],
@@ -570,7 +666,7 @@ pub fn help_overlay(app: &mut MlodApp, ctx: &egui::Context) {
     egui::Window::new("Keyboard and mouse").open(&mut open).collapsible(false).resizable(false).anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0]).show(ctx, |ui| {
         ui.monospace(CONTROLS_HELP);
         ui.separator();
-        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nF1 or ?     this help\nEsc         close");
+        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the stage-1 detector\nF1 or ?     this help\nEsc         close");
         ui.separator();
         ui.label("Drop a dataset folder or a session .json on the window to open it.");
     });

@@ -1,0 +1,62 @@
+//! Stage-1 detector cost on this CPU (issue 6): inference per sample for each case — fuse,
+//! voxelise, network, decoding and NMS — on a sample_data frame (target ≤ 150 ms on 2 cores), and
+//! one training step (data, forward, backward, AdamW) of Input Fusion. Uses the shipped weights
+//! when `assets/models/manifest.json` lists them, else seeded random weights (same cost, but
+//! random weights give few boxes, so decoding/NMS is cheaper than with trained ones).
+use criterion::{criterion_group, criterion_main, Criterion};
+use mlod::detect::model::load_detector;
+use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
+use mlod::detect::weights::default_models_dir;
+use mlod::detect::{Case, Detector, ModelConfig, ResultFusion, Stage1Model};
+use mlod::lyft::Dataset;
+use mlod::pipeline::FuseParams;
+use std::hint::black_box;
+
+fn detector(case: Case) -> Box<dyn Detector> {
+    if let Ok(d) = load_detector(&default_models_dir(), case) {
+        return d;
+    }
+    let fresh = |c: Case| Stage1Model::new_trainable(ModelConfig::new(c), 1).expect("model");
+    match case {
+        Case::Result => Box::new(ResultFusion {
+            generators: [Case::Top, Case::Left, Case::Right]
+                .map(|c| (fresh(c), 1.0))
+                .into(),
+            nms_iou: 0.1,
+            max_detections: 100,
+        }),
+        c => Box::new(fresh(c)),
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).expect("sample_data");
+    let token = ds.first_sample_token().expect("a sample").to_string();
+    let frame = ds.frame(&token).expect("frame");
+    let params = FuseParams::default();
+    let mut g = c.benchmark_group("detect");
+    g.sample_size(10);
+    for case in Case::ALL {
+        let d = detector(case);
+        g.bench_function(case.as_str(), |b| {
+            b.iter(|| black_box(d.detect(&frame, &params).expect("detect")))
+        });
+    }
+    g.finish();
+    let mut g = c.benchmark_group("train_step");
+    g.sample_size(10);
+    let model = Stage1Model::new_trainable(ModelConfig::new(Case::Input), 1).expect("model");
+    let mut opt = AdamW::new(&model, 0.01).expect("optimiser");
+    g.bench_function("input", |b| {
+        b.iter(|| {
+            let s = prepare_sample(&model, &frame, None).expect("sample");
+            let l = compute_loss(&model, &s).expect("loss");
+            let grads = l.total.backward().expect("backward");
+            opt.update(&grads, 1e-4, 10.0).expect("update")
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,267 @@
+//! The `mlod train` and `mlod detect` subcommands (stage-1 detectors, paper §IV-A / §V-A-5).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use mlod::detect::model::load_detector;
+use mlod::detect::train::{calibrate_temperatures, train_stage1, TrainConfig};
+use mlod::detect::weights::default_models_dir;
+use mlod::detect::{Case, Detection};
+use mlod::pipeline::FuseParams;
+
+#[derive(clap::Subcommand)]
+pub enum TrainCommand {
+    /// Train a stage-1 detector (top|left|right|input|feature); resumable, deterministic per seed.
+    Stage1(Stage1Args),
+    /// Fit Result Fusion's per-generator temperatures on the validation split (scenes % 10 == 9).
+    CalibrateTemperature(CalibrateArgs),
+}
+
+#[derive(clap::Args)]
+pub struct Stage1Args {
+    #[arg(long)]
+    case: Case,
+    /// Training dataset (root or version folder); every 10th scene is held out for validation.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Final weights file (safetensors); its folder's manifest.json gets the model's entry.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 8000)]
+    steps: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Continue from the checkpoint (default <out>.ckpt.safetensors) after a kill.
+    #[arg(long)]
+    resume: bool,
+    /// Checkpoint file (default: <out> with extension .ckpt.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints.
+    #[arg(long, default_value_t = 300.0)]
+    checkpoint_every: f64,
+    /// Peak learning rate (AdamW; warm-up then cosine decay).
+    #[arg(long, default_value_t = 2e-3)]
+    lr: f64,
+    /// Train on at most this many samples (0: all).
+    #[arg(long, default_value_t = 0)]
+    max_samples: usize,
+    /// Start from another model's weights (warm start; a single-branch model initialises every
+    /// Feature Fusion branch).
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Print one line every N steps (besides the progress bar).
+    #[arg(long, default_value_t = 50)]
+    log_every: u64,
+}
+
+#[derive(clap::Args)]
+pub struct CalibrateArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// At most this many validation samples (0: all).
+    #[arg(long, default_value_t = 0)]
+    samples: usize,
+    /// 3D IoU for a detection to count as a true positive.
+    #[arg(long, default_value_t = 0.7)]
+    iou: f64,
+}
+
+#[derive(clap::Args)]
+pub struct DetectArgs {
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Sample token (default: the first sample in scene order).
+    #[arg(long)]
+    sample: Option<String>,
+    #[arg(long)]
+    case: Case,
+    /// α of the injected perturbation of the auxiliary LiDARs.
+    #[arg(long, default_value_t = 0.0)]
+    alpha: f64,
+    /// Seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+    /// base: base-frame boxes; lyft: the devkit's prediction format (global frame).
+    #[arg(long, default_value = "base")]
+    format: DetectFormat,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DetectFormat {
+    Base,
+    Lyft,
+}
+
+fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
+pub fn train(cmd: TrainCommand) -> Result<()> {
+    match cmd {
+        TrainCommand::Stage1(a) => {
+            let mut cfg = TrainConfig::new(a.case, a.dataset, a.out);
+            cfg.steps = a.steps;
+            cfg.seed = a.seed;
+            cfg.resume = a.resume;
+            cfg.lr = a.lr;
+            cfg.max_samples = a.max_samples;
+            cfg.checkpoint_every_s = a.checkpoint_every;
+            cfg.init = a.init;
+            if let Some(c) = a.checkpoint {
+                cfg.checkpoint = c;
+            }
+            cfg.command = command_line();
+            let bar = ProgressBar::new(cfg.steps);
+            bar.set_style(
+                ProgressStyle::with_template("{bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            let mut ema: Option<f32> = None;
+            let log_every = a.log_every.max(1);
+            let summary = train_stage1(&cfg, |r| {
+                let e = ema.map_or(r.loss, |e| 0.98 * e + 0.02 * r.loss);
+                ema = Some(e);
+                bar.set_position(r.step + 1);
+                bar.set_message(format!("loss {e:.4}"));
+                if (r.step + 1) % log_every == 0 {
+                    bar.suspend(|| {
+                        eprintln!(
+                            "step {} loss {:.4} (ema {e:.4}) cls {:.4} reg {:.4} dir {:.4} pos {} lr {:.2e} |g| {:.2} {:.0} s [data {:.0} fwd {:.0} bwd {:.0} opt {:.0} ms]",
+                            r.step + 1,
+                            r.loss,
+                            r.cls,
+                            r.reg,
+                            r.dir,
+                            r.num_pos,
+                            r.lr,
+                            r.grad_norm,
+                            r.elapsed_s,
+                            r.timing_ms[0],
+                            r.timing_ms[1],
+                            r.timing_ms[2],
+                            r.timing_ms[3]
+                        )
+                    });
+                }
+            })?;
+            bar.finish();
+            println!(
+                "trained {} steps in {:.0} s -> {} (sha256 {})",
+                summary.steps,
+                summary.wall_time_s,
+                summary.out.display(),
+                summary.sha256
+            );
+            Ok(())
+        }
+        TrainCommand::CalibrateTemperature(a) => {
+            let models = a.models.unwrap_or_else(default_models_dir);
+            let temps = calibrate_temperatures(
+                &a.dataset,
+                &models,
+                a.samples,
+                a.iou,
+                &command_line(),
+                |c, k, n| {
+                    if k % 20 == 0 || k == n {
+                        eprintln!("{c}: {k}/{n}");
+                    }
+                },
+            )?;
+            for (c, t) in temps {
+                println!("{c}: T = {t:.4}");
+            }
+            Ok(())
+        }
+    }
+}
+
+pub fn detect(a: DetectArgs) -> Result<()> {
+    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let token = match &a.sample {
+        Some(t) => t.clone(),
+        None => dataset
+            .first_sample_token()
+            .context("the dataset has no samples")?
+            .to_string(),
+    };
+    let frame = dataset.frame(&token)?;
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(a.alpha, a.seed)?,
+        ..Default::default()
+    };
+    let models = a.models.unwrap_or_else(default_models_dir);
+    let detector = load_detector(&models, a.case)?;
+    let t0 = std::time::Instant::now();
+    let dets = detector.detect(&frame, &params)?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    match a.format {
+        DetectFormat::Base => {
+            if a.json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&base_json(&token, a.case, &dets))?
+                );
+            } else {
+                println!(
+                    "{} on {token}: {} boxes in {ms:.1} ms (base frame)",
+                    a.case.paper_name(),
+                    dets.len()
+                );
+                for d in &dets {
+                    let b = &d.box3d;
+                    println!(
+                        "  {:<6} score {:.3}  center [{:8.3}, {:8.3}, {:7.3}]  lwh [{:.2}, {:.2}, {:.2}]  yaw {:7.4}",
+                        d.category, d.score, b.center[0], b.center[1], b.center[2], b.size_lwh[0], b.size_lwh[1],
+                        b.size_lwh[2], b.yaw
+                    );
+                }
+            }
+        }
+        DetectFormat::Lyft => {
+            let to_global = frame.primary.info.ego_to_global * frame.primary.info.sensor_to_ego;
+            let rows: Vec<mlod::eval::LyftBox> = dets
+                .iter()
+                .map(|d| {
+                    mlod::eval::LyftBox::from_base(
+                        &token,
+                        &d.box3d,
+                        &to_global,
+                        &d.category,
+                        Some(f64::from(d.score)),
+                    )
+                })
+                .collect();
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        }
+    }
+    Ok(())
+}
+
+fn base_json(token: &str, case: Case, dets: &[Detection]) -> serde_json::Value {
+    serde_json::json!({
+        "sample_token": token,
+        "case": case,
+        "frame": "base (LIDAR_TOP)",
+        "detections": dets.iter().map(|d| serde_json::json!({
+            "center": d.box3d.center,
+            "size_lwh": d.box3d.size_lwh,
+            "yaw": d.box3d.yaw,
+            "score": d.score,
+            "category": d.category,
+        })).collect::<Vec<_>>(),
+    })
+}

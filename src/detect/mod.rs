@@ -1,0 +1,156 @@
+//! Stage-1 detectors (paper §IV-A): LiDAR-Top/Left/Right, Input, Feature and Result Fusion, behind
+//! one [`Detector`] trait, with their training and their shipped weights.
+//!
+//! How it is cut (OpenPCDet's stage order):
+//! - [`voxel`]: points in the base frame → height-compressed BEV (SECOND v1.5 mean-point FLN).
+//! - [`net`]: 2D middle layers (one branch per LiDAR in Feature Fusion, max-fused, eq. 10), SECOND's
+//!   RPN and heads, focal / smooth-L1 / direction losses.
+//! - [`anchors`]: anchors, target assignment, SECOND's box coding.
+//! - [`model`]: a trained network + its configuration → [`Detection`]s (decoding, NMS), the
+//!   [`Detector`] implementations of every [`Case`], Result Fusion (eq. 11) with temperature
+//!   scaling.
+//! - [`weights`]: safetensors files with their configuration, sha256-checked through
+//!   `assets/models/manifest.json`.
+//! - [`train`]: the training loop (§V-A-5 augmentation, AdamW, resumable checkpoints, loss CSV) and
+//!   the temperature calibration of Result Fusion.
+
+pub mod anchors;
+pub mod model;
+pub mod net;
+pub mod train;
+pub mod voxel;
+pub mod weights;
+
+use serde::{Deserialize, Serialize};
+
+use crate::lyft::{Frame, LidarChannel};
+use crate::pipeline::FuseParams;
+
+/// A detector's output: a base-frame box, its confidence in [0, 1] (calibrated by temperature
+/// scaling in Result Fusion) and its Lyft category.
+pub use crate::geometry::Detection;
+pub use model::{ModelConfig, ResultFusion, Stage1Model};
+pub use weights::{Manifest, ModelEntry};
+
+/// The stage-1 cases of the paper (§V-A-4).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Case {
+    /// LiDAR-Top: the primary LiDAR alone.
+    Top,
+    /// LiDAR-Left: LIDAR_FRONT_LEFT alone, in the base frame.
+    Left,
+    /// LiDAR-Right: LIDAR_FRONT_RIGHT alone, in the base frame.
+    Right,
+    /// Input Fusion: all LiDARs' points, one network.
+    Input,
+    /// Feature Fusion: one middle-layer branch per LiDAR, max-fused BEV features, one RPN.
+    Feature,
+    /// Result Fusion: the three single-LiDAR detectors, calibrated, merged by 3D NMS.
+    Result,
+}
+
+impl Case {
+    pub const ALL: [Case; 6] = [
+        Case::Top,
+        Case::Left,
+        Case::Right,
+        Case::Input,
+        Case::Feature,
+        Case::Result,
+    ];
+
+    /// The lowercase name used on the command line and in file names.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Case::Top => "top",
+            Case::Left => "left",
+            Case::Right => "right",
+            Case::Input => "input",
+            Case::Feature => "feature",
+            Case::Result => "result",
+        }
+    }
+
+    /// The paper's name.
+    pub fn paper_name(self) -> &'static str {
+        match self {
+            Case::Top => "LiDAR-Top",
+            Case::Left => "LiDAR-Left",
+            Case::Right => "LiDAR-Right",
+            Case::Input => "Input Fusion",
+            Case::Feature => "Feature Fusion",
+            Case::Result => "Result Fusion",
+        }
+    }
+
+    /// The single LiDAR of a single-LiDAR case.
+    pub fn channel(self) -> Option<LidarChannel> {
+        match self {
+            Case::Top => Some(LidarChannel::Top),
+            Case::Left => Some(LidarChannel::FrontLeft),
+            Case::Right => Some(LidarChannel::FrontRight),
+            _ => None,
+        }
+    }
+
+    /// Whether one network is trained for this case (all but Result Fusion).
+    pub fn is_trainable(self) -> bool {
+        self != Case::Result
+    }
+}
+
+impl std::fmt::Display for Case {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Errors of the detectors.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    #[error("weights file {path}: {what}")]
+    Weights { path: std::path::PathBuf, what: String },
+    #[error("weights file {path}: sha256 {actual} does not match the manifest's {expected} (corrupt or replaced file)")]
+    Checksum {
+        path: std::path::PathBuf,
+        expected: String,
+        actual: String,
+    },
+    #[error("weights file {path} is for case {found}, expected {expected}")]
+    WrongCase {
+        path: std::path::PathBuf,
+        expected: Case,
+        found: String,
+    },
+    #[error("manifest {path}: {what}")]
+    Manifest { path: std::path::PathBuf, what: String },
+    #[error("sample {sample}: LiDAR {channel} is not present")]
+    MissingLidar { sample: String, channel: LidarChannel },
+    #[error("bad parameter: {0}")]
+    BadParameter(String),
+    #[error("network: {0}")]
+    Candle(#[from] candle_core::Error),
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
+    #[error(transparent)]
+    Lyft(#[from] crate::lyft::LyftError),
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+}
+
+/// One entry point for every stage-1 case.
+pub trait Detector: Send + Sync {
+    /// The case this detector implements.
+    fn case(&self) -> Case;
+
+    /// The Lyft categories it can output (`car`, ...); ground truth of other classes is not its
+    /// business.
+    fn categories(&self) -> Vec<String>;
+
+    /// Fuses the frame with `params` (so perturbations reach the auxiliary LiDARs) and detects
+    /// objects; boxes are in the base frame, highest score first.
+    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError>;
+}

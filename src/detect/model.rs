@@ -1,0 +1,552 @@
+//! A stage-1 model: configuration + network + anchors, from points to [`Detection`]s, and the
+//! [`Detector`] of every case (paper §IV-A).
+//!
+//! How it works: the frame is fused once with the caller's [`FuseParams`] (so perturbed extrinsics
+//! reach the auxiliary LiDARs' points); each network branch voxelises the points it is given —
+//! one LiDAR's slice of the fused cloud (LiDAR-Top/Left/Right and the Feature Fusion branches) or
+//! the whole cloud (Input Fusion). Decoding keeps anchors whose sigmoid score passes the
+//! threshold (at most `pre_nms`, best first), decodes SECOND's residuals, puts the heading in the
+//! half-turn the direction head chose and runs BEV NMS. Result Fusion (eq. 11) runs the three
+//! single-LiDAR detectors, rescales each one's logits by its fitted temperature (Guo et al.,
+//! temperature scaling) and merges all boxes with NMS on 3D IoU.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+use serde::{Deserialize, Serialize};
+
+use super::anchors::{apply_direction, decode, AnchorConfig, Anchors};
+use super::net::{HeadOutput, NetConfig, Stage1Net};
+use super::voxel::{voxelize, Bev, GridConfig, PointsRef};
+use super::weights::{encode_safetensors, read_weights, Manifest};
+use super::{Case, DetectError, Detection, Detector};
+use crate::geometry::{nms, Box3d, IouKind};
+use crate::lyft::{Frame, LidarChannel};
+use crate::pipeline::{fuse, FuseParams, FusedCloud};
+
+/// Everything that defines a trained stage-1 model besides its weights.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelConfig {
+    pub case: Case,
+    pub grid: GridConfig,
+    pub net: NetConfig,
+    pub anchor: AnchorConfig,
+    /// Detections below this score are dropped.
+    pub score_threshold: f32,
+    /// Candidates kept before NMS.
+    pub pre_nms: usize,
+    /// BEV IoU above which NMS suppresses a box.
+    pub nms_iou: f64,
+    /// Detections kept after NMS.
+    pub max_detections: usize,
+}
+
+impl ModelConfig {
+    /// The default configuration of a trainable case.
+    pub fn new(case: Case) -> Self {
+        Self {
+            case,
+            grid: GridConfig::default(),
+            net: NetConfig::default(),
+            anchor: AnchorConfig::default(),
+            score_threshold: 0.05,
+            pre_nms: 500,
+            nms_iou: 0.1,
+            max_detections: 100,
+        }
+    }
+
+    /// The names of the network branches: one per LiDAR in Feature Fusion, else one.
+    pub fn branch_names(&self) -> Vec<&'static str> {
+        match self.case {
+            Case::Feature => vec!["top", "left", "right"],
+            c => vec![c.as_str()],
+        }
+    }
+}
+
+/// The points each branch of a case sees, as slices of the fused cloud (`None`: LiDAR absent).
+pub fn branch_points<'a>(case: Case, cloud: &'a FusedCloud) -> Vec<Option<PointsRef<'a>>> {
+    let slice = |r: std::ops::Range<usize>| PointsRef {
+        x: &cloud.x[r.clone()],
+        y: &cloud.y[r.clone()],
+        z: &cloud.z[r.clone()],
+        intensity: &cloud.intensity[r],
+    };
+    let of = |ch: LidarChannel| {
+        cloud
+            .lidars
+            .iter()
+            .find(|l| l.channel == ch)
+            .filter(|l| l.range.end <= cloud.len() && l.range.end <= cloud.intensity.len())
+            .map(|l| slice(l.range.clone()))
+    };
+    match case {
+        Case::Input => vec![Some(slice(0..cloud.len().min(cloud.intensity.len())))],
+        Case::Feature => LidarChannel::ALL.iter().map(|c| of(*c)).collect(),
+        c => vec![c.channel().and_then(of)],
+    }
+}
+
+/// A BEV as a `[1, C, n, n]` tensor.
+pub fn bev_tensor(bev: &Bev) -> candle_core::Result<Tensor> {
+    Tensor::from_slice(&bev.data, (1, bev.channels, bev.n, bev.n), &Device::Cpu)
+}
+
+/// A stage-1 network with its configuration and anchors.
+pub struct Stage1Model {
+    pub config: ModelConfig,
+    pub net: Stage1Net,
+    pub anchors: Anchors,
+    /// The trainable variables (present when built for training).
+    pub varmap: Option<VarMap>,
+}
+
+impl std::fmt::Debug for Stage1Model {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Stage1Model")
+            .field("config", &self.config)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Stage1Model {
+    /// A freshly initialised, trainable model (weights drawn from `seed`).
+    pub fn new_trainable(config: ModelConfig, seed: u64) -> Result<Self, DetectError> {
+        if !config.case.is_trainable() {
+            return Err(DetectError::BadParameter(
+                "Result Fusion has no network of its own".into(),
+            ));
+        }
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let net = Stage1Net::new(&config.grid, &config.net, &config.branch_names(), vb)?;
+        Stage1Net::init_weights(&varmap, seed)?;
+        let anchors = Anchors::new(&config.grid, &config.anchor);
+        Ok(Self {
+            config,
+            net,
+            anchors,
+            varmap: Some(varmap),
+        })
+    }
+
+    /// An inference model from tensors (no gradients tracked).
+    pub fn from_tensors(
+        config: ModelConfig,
+        tensors: std::collections::HashMap<String, Tensor>,
+    ) -> Result<Self, DetectError> {
+        let vb = VarBuilder::from_tensors(tensors, DType::F32, &Device::Cpu);
+        let net = Stage1Net::new(&config.grid, &config.net, &config.branch_names(), vb)?;
+        let anchors = Anchors::new(&config.grid, &config.anchor);
+        Ok(Self {
+            config,
+            net,
+            anchors,
+            varmap: None,
+        })
+    }
+
+    /// Loads a weights file, checking its sha256 when given and that it is a model of `case`.
+    pub fn load(path: &Path, case: Case, expected_sha256: Option<&str>) -> Result<Self, DetectError> {
+        let w = read_weights(path, expected_sha256)?;
+        let bad = |what: String| DetectError::Weights {
+            path: path.to_path_buf(),
+            what,
+        };
+        let cfg = w
+            .metadata
+            .get("mlod.config")
+            .ok_or_else(|| bad("no mlod.config in its metadata".into()))?;
+        let config: ModelConfig =
+            serde_json::from_str(cfg).map_err(|e| bad(format!("bad mlod.config: {e}")))?;
+        if config.case != case {
+            return Err(DetectError::WrongCase {
+                path: path.to_path_buf(),
+                expected: case,
+                found: config.case.to_string(),
+            });
+        }
+        Self::from_tensors(config, w.tensors).map_err(|e| bad(format!("does not fit the network: {e}")))
+    }
+
+    /// Loads the shipped model of `case` from a models folder (manifest + checksum).
+    pub fn load_shipped(dir: &Path, case: Case) -> Result<Self, DetectError> {
+        let manifest = Manifest::load(dir)?;
+        let entry = manifest.entry(dir, case)?;
+        Self::load(&dir.join(&entry.file), case, Some(&entry.sha256))
+    }
+
+    /// The weights (trainable variables or loaded tensors) as a safetensors file with the
+    /// configuration in its metadata, plus `extra` tensors and metadata (checkpoints).
+    pub fn to_safetensors(
+        &self,
+        extra: BTreeMap<String, Tensor>,
+        extra_meta: BTreeMap<String, String>,
+    ) -> Result<Vec<u8>, DetectError> {
+        let varmap = self
+            .varmap
+            .as_ref()
+            .ok_or_else(|| DetectError::BadParameter("only a trainable model can be saved".into()))?;
+        let mut tensors: BTreeMap<String, Tensor> = {
+            let data = varmap
+                .data()
+                .lock()
+                .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+            data.iter()
+                .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+                .collect()
+        };
+        tensors.extend(extra);
+        let mut meta = extra_meta;
+        meta.insert(
+            "mlod.config".into(),
+            serde_json::to_string(&self.config).map_err(|e| DetectError::BadParameter(e.to_string()))?,
+        );
+        encode_safetensors(&tensors, &meta)
+    }
+
+    /// The BEV of each branch (`None` where the LiDAR is absent).
+    pub fn voxelize(&self, cloud: &FusedCloud) -> Vec<Option<Bev>> {
+        branch_points(self.config.case, cloud)
+            .into_iter()
+            .map(|p| p.map(|p| voxelize(&self.config.grid, p)))
+            .collect()
+    }
+
+    /// The network on BEV inputs (one per branch).
+    pub fn forward(&self, bevs: &[Option<Bev>], train: bool) -> Result<HeadOutput, DetectError> {
+        let inputs = bevs
+            .iter()
+            .map(|b| b.as_ref().map(bev_tensor).transpose())
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        if inputs.iter().all(|i| i.is_none()) {
+            return Err(DetectError::BadParameter(format!(
+                "{}: none of its LiDARs is present",
+                self.config.case.paper_name()
+            )));
+        }
+        Ok(self.net.forward_t(&inputs, train)?)
+    }
+
+    /// Decodes head outputs into boxes with their logits (before the score threshold is applied
+    /// as a probability), best first, after NMS.
+    pub fn decode(&self, heads: &HeadOutput, temperature: f64) -> Result<Vec<(Detection, f32)>, DetectError> {
+        let cls: Vec<f32> = heads.cls.to_vec1()?;
+        let c = &self.config;
+        let t = temperature.max(1e-3) as f32;
+        let logit_min = {
+            let p = c.score_threshold.clamp(1e-6, 1.0 - 1e-6);
+            (p / (1.0 - p)).ln() * t
+        };
+        let mut cand: Vec<usize> = (0..cls.len().min(self.anchors.len()))
+            .filter(|&i| cls[i] >= logit_min && cls[i].is_finite())
+            .collect();
+        cand.sort_by(|&a, &b| cls[b].total_cmp(&cls[a]).then(a.cmp(&b)));
+        cand.truncate(c.pre_nms);
+        if cand.is_empty() {
+            return Ok(Vec::new());
+        }
+        let idx = Tensor::from_vec(
+            cand.iter().map(|&i| i as u32).collect::<Vec<_>>(),
+            cand.len(),
+            &Device::Cpu,
+        )?;
+        let reg: Vec<f32> = heads.reg.index_select(&idx, 0)?.flatten_all()?.to_vec1()?;
+        let dir: Vec<f32> = heads.dir.index_select(&idx, 0)?.flatten_all()?.to_vec1()?;
+        let mut boxes = Vec::with_capacity(cand.len());
+        let mut scores = Vec::with_capacity(cand.len());
+        let mut logits = Vec::with_capacity(cand.len());
+        for (k, &i) in cand.iter().enumerate() {
+            let r: [f32; 7] = std::array::from_fn(|j| reg[7 * k + j]);
+            let b = decode(&r, &self.anchors.boxes[i]);
+            let d = u32::from(dir[2 * k + 1] > dir[2 * k]);
+            let yaw = apply_direction(b[6], d);
+            let b3 = Box3d::new(
+                [b[0] as f64, b[1] as f64, b[2] as f64],
+                [b[3] as f64, b[4] as f64, b[5] as f64],
+                yaw as f64,
+            );
+            if !b3.is_valid() {
+                continue;
+            }
+            boxes.push(b3);
+            let z = cls[i] / t;
+            scores.push(1.0 / (1.0 + (-z).exp()));
+            logits.push(cls[i]);
+        }
+        let keep = nms(&boxes, &scores, c.nms_iou, IouKind::Bev);
+        Ok(keep
+            .into_iter()
+            .take(c.max_detections)
+            .map(|k| {
+                (
+                    Detection {
+                        box3d: boxes[k],
+                        score: scores[k],
+                        category: c.anchor.category.clone(),
+                    },
+                    logits[k],
+                )
+            })
+            .collect())
+    }
+
+    /// Detections on an already fused cloud.
+    pub fn detect_cloud(&self, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+        let bevs = self.voxelize(cloud);
+        let heads = self.forward(&bevs, false)?;
+        Ok(self.decode(&heads, 1.0)?.into_iter().map(|(d, _)| d).collect())
+    }
+
+    /// Detections with their raw logits (for temperature calibration).
+    pub fn detect_cloud_logits(&self, cloud: &FusedCloud) -> Result<Vec<(Detection, f32)>, DetectError> {
+        let bevs = self.voxelize(cloud);
+        let heads = self.forward(&bevs, false)?;
+        self.decode(&heads, 1.0)
+    }
+}
+
+impl Detector for Stage1Model {
+    fn case(&self) -> Case {
+        self.config.case
+    }
+
+    fn categories(&self) -> Vec<String> {
+        vec![self.config.anchor.category.clone()]
+    }
+
+    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
+        if let Some(ch) = self.config.case.channel() {
+            if frame.lidar(ch).is_none() {
+                return Err(DetectError::MissingLidar {
+                    sample: frame.sample_token.clone(),
+                    channel: ch,
+                });
+            }
+        }
+        let cloud = fuse(frame, params)?;
+        self.detect_cloud(&cloud)
+    }
+}
+
+/// Result Fusion (paper eq. 11): the single-LiDAR detectors, each with its temperature, merged by
+/// NMS on 3D IoU.
+#[derive(Debug)]
+pub struct ResultFusion {
+    /// (detector, temperature) of LiDAR-Top, -Left, -Right.
+    pub generators: Vec<(Stage1Model, f64)>,
+    /// 3D IoU above which the merge suppresses a box.
+    pub nms_iou: f64,
+    pub max_detections: usize,
+}
+
+impl ResultFusion {
+    /// Loads the three shipped single-LiDAR models and their temperatures.
+    pub fn load_shipped(dir: &Path) -> Result<Self, DetectError> {
+        let manifest = Manifest::load(dir)?;
+        let mut generators = Vec::new();
+        for case in [Case::Top, Case::Left, Case::Right] {
+            let entry = manifest.entry(dir, case)?;
+            let model = Stage1Model::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+            let t = manifest.temperatures.get(&case).copied().unwrap_or(1.0);
+            generators.push((model, t));
+        }
+        Ok(Self {
+            generators,
+            nms_iou: 0.1,
+            max_detections: 100,
+        })
+    }
+
+    /// Merges per-generator detections (already calibrated) by 3D NMS.
+    pub fn merge(&self, all: Vec<Detection>) -> Vec<Detection> {
+        let boxes: Vec<Box3d> = all.iter().map(|d| d.box3d).collect();
+        let scores: Vec<f32> = all.iter().map(|d| d.score).collect();
+        nms(&boxes, &scores, self.nms_iou, IouKind::ThreeD)
+            .into_iter()
+            .take(self.max_detections)
+            .filter_map(|k| all.get(k).cloned())
+            .collect()
+    }
+
+    /// Detections on a fused cloud (generators whose LiDAR is absent contribute nothing).
+    pub fn detect_cloud(&self, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+        // The generators are independent: run them side by side (one network scales poorly past
+        // one core), then merge in generator order so the output does not depend on scheduling.
+        let per_generator: Vec<Vec<Detection>> = self
+            .generators
+            .par_iter()
+            .map(|(model, t)| -> Result<Vec<Detection>, DetectError> {
+                let present = model
+                    .config
+                    .case
+                    .channel()
+                    .is_some_and(|ch| cloud.lidars.iter().any(|l| l.channel == ch));
+                if !present {
+                    return Ok(Vec::new());
+                }
+                let heads = model.forward(&model.voxelize(cloud), false)?;
+                Ok(model.decode(&heads, *t)?.into_iter().map(|(d, _)| d).collect())
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(self.merge(per_generator.into_iter().flatten().collect()))
+    }
+}
+
+impl Detector for ResultFusion {
+    fn case(&self) -> Case {
+        Case::Result
+    }
+
+    fn categories(&self) -> Vec<String> {
+        let mut c: Vec<String> = self.generators.iter().flat_map(|(m, _)| m.categories()).collect();
+        c.sort();
+        c.dedup();
+        c
+    }
+
+    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
+        let cloud = fuse(frame, params)?;
+        self.detect_cloud(&cloud)
+    }
+}
+
+/// The shipped detector of any case, behind the one trait.
+pub fn load_detector(dir: &Path, case: Case) -> Result<Box<dyn Detector>, DetectError> {
+    Ok(match case {
+        Case::Result => Box::new(ResultFusion::load_shipped(dir)?),
+        c => Box::new(Stage1Model::load_shipped(dir, c)?),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lyft::Dataset;
+
+    fn sample_frame() -> Frame {
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let token = ds.first_sample_token().unwrap().to_string();
+        ds.frame(&token).unwrap()
+    }
+
+    #[test]
+    fn feature_fusion_with_one_lidar_equals_that_branch() {
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Feature), 3).unwrap();
+        let frame = sample_frame();
+        let cloud = fuse(&frame, &FuseParams::default()).unwrap();
+        let bevs = model.voxelize(&cloud);
+        assert_eq!(bevs.len(), 3);
+        assert!(
+            bevs.iter().all(|b| b.is_some()),
+            "sample_data has all three LiDARs"
+        );
+        for k in 0..3 {
+            // Only LiDAR k present: the fused map is branch k's map, and so are the heads.
+            let only: Vec<Option<Bev>> = (0..3)
+                .map(|j| if j == k { bevs[j].clone() } else { None })
+                .collect();
+            let inputs: Vec<Option<Tensor>> = only
+                .iter()
+                .map(|b| b.as_ref().map(|b| bev_tensor(b).unwrap()))
+                .collect();
+            let fused = model.net.features(&inputs, false).unwrap();
+            let x = inputs[k].as_ref().unwrap();
+            let branch = model.net.branches[k].1.forward_t(x, false).unwrap();
+            let diff = (fused - &branch)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap();
+            assert_eq!(diff, 0.0);
+            let a = model.forward(&only, false).unwrap();
+            let b = model.net.rpn.forward_t(&branch, false).unwrap();
+            let d = (a.cls - b.cls)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap();
+            assert_eq!(d, 0.0);
+        }
+        // All three present: the element-wise maximum of the branch maps.
+        let inputs: Vec<Option<Tensor>> = bevs
+            .iter()
+            .map(|b| b.as_ref().map(|b| bev_tensor(b).unwrap()))
+            .collect();
+        let fused = model.net.features(&inputs, false).unwrap();
+        let maps: Vec<Tensor> = (0..3)
+            .map(|k| {
+                model.net.branches[k]
+                    .1
+                    .forward_t(inputs[k].as_ref().unwrap(), false)
+                    .unwrap()
+            })
+            .collect();
+        let expect = maps[0].maximum(&maps[1]).unwrap().maximum(&maps[2]).unwrap();
+        let d = (fused - expect)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert_eq!(d, 0.0);
+    }
+
+    #[test]
+    fn saved_model_loads_back_and_corrupt_or_wrong_files_are_named() {
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 5).unwrap();
+        let bytes = model.to_safetensors(BTreeMap::new(), BTreeMap::new()).unwrap();
+        let dir = std::env::temp_dir().join(format!("mlod-model-{}", std::process::id()));
+        let path = dir.join("top.safetensors");
+        crate::io::write_atomic(&path, &bytes).unwrap();
+        let sha = super::super::weights::sha256_hex(&bytes);
+        let frame = sample_frame();
+        let cloud = fuse(&frame, &FuseParams::default()).unwrap();
+        let loaded = Stage1Model::load(&path, Case::Top, Some(&sha)).unwrap();
+        let a = model.forward(&model.voxelize(&cloud), false).unwrap();
+        let b = loaded.forward(&loaded.voxelize(&cloud), false).unwrap();
+        let d = (a.reg - b.reg)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert_eq!(d, 0.0, "save/load round trip is exact");
+        // A model of another case.
+        let e = Stage1Model::load(&path, Case::Input, Some(&sha)).unwrap_err();
+        assert!(matches!(e, DetectError::WrongCase { .. }), "{e}");
+        // Corrupted bytes: the checksum error names the file.
+        let mut bad = bytes.clone();
+        let mid = bad.len() / 2;
+        bad[mid] ^= 0x40;
+        crate::io::write_atomic(&path, &bad).unwrap();
+        let e = Stage1Model::load(&path, Case::Top, Some(&sha)).unwrap_err();
+        assert!(
+            e.to_string().contains("top.safetensors") && e.to_string().contains("sha256"),
+            "{e}"
+        );
+        // Truncated without a checksum: a format error naming the file.
+        crate::io::write_atomic(&path, &bytes[..bytes.len() / 3]).unwrap();
+        let e = Stage1Model::load(&path, Case::Top, None).unwrap_err();
+        assert!(
+            matches!(e, DetectError::Weights { .. }) && e.to_string().contains("top.safetensors"),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

@@ -1,0 +1,939 @@
+//! Training of the stage-1 networks (paper §V-A-5, following SECOND) and the temperature
+//! calibration of Result Fusion's generators.
+//!
+//! How it works:
+//! - Split: the dataset's scenes in scene order; every 10th scene (index % 10 == 9) is the
+//!   validation split (temperature fitting), the rest is trained on. Test scenes live in a
+//!   different dataset generated with another seed, never seen here.
+//! - One step = one sample (batch 1, fastest on a CPU): fuse with the nominal extrinsics, with
+//!   probability 0.3 augment points and boxes together (flip y → −y with probability 0.5, rotate
+//!   by U(−5°, 5°) about z, translate by U(±0.5, ±0.5, ±0.3) m), voxelise each branch, assign
+//!   targets, then loss = focal(cls) + 2·smooth-L1(box, sin-difference angle) + 0.2·CE(direction),
+//!   each normalised by the number of positives, and one AdamW update (linear warm-up, cosine
+//!   decay, gradient-norm clip 10).
+//! - Determinism: the sample order of epoch e is a shuffle from ChaCha8(seed, stream e); step s
+//!   draws its augmentation from ChaCha8(seed, stream 2³² + s); weights start from ChaCha8(seed).
+//!   Nothing else is random, so a run resumed from a checkpoint continues exactly as if it had not
+//!   stopped (given the same thread count).
+//! - Checkpoints (weights, AdamW moments, step, elapsed time, the loss-curve rows) are written
+//!   atomically every few minutes and at the end; `resume` restarts from one.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use candle_core::{DType, Device, Tensor, Var};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::anchors::{assign, RawBox, Targets};
+use super::model::{branch_points, ModelConfig, Stage1Model};
+use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
+use super::voxel::{voxelize, Bev, PointsRef};
+use super::weights::{read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
+use super::{Case, DetectError};
+use crate::geometry::{iou_3d, Box3d};
+use crate::lyft::{Dataset, Frame};
+use crate::pipeline::{fuse, FuseParams, FusedCloud};
+
+/// The §V-A-5 augmentation of one sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Augmentation {
+    pub flip_y: bool,
+    /// Rotation about z (rad).
+    pub yaw: f32,
+    pub translation: [f32; 3],
+}
+
+impl Augmentation {
+    /// Draws the augmentation of one step: 30% of the samples are augmented.
+    pub fn draw(rng: &mut ChaCha8Rng) -> Option<Self> {
+        if rng.random::<f64>() >= 0.3 {
+            return None;
+        }
+        Some(Self {
+            flip_y: rng.random::<bool>(),
+            yaw: rng.random_range(-5f32..=5.0).to_radians(),
+            translation: [
+                rng.random_range(-0.5f32..=0.5),
+                rng.random_range(-0.5f32..=0.5),
+                rng.random_range(-0.3f32..=0.3),
+            ],
+        })
+    }
+
+    fn point(&self, x: f32, y: f32, z: f32) -> [f32; 3] {
+        let y = if self.flip_y { -y } else { y };
+        let (s, c) = self.yaw.sin_cos();
+        [
+            c * x - s * y + self.translation[0],
+            s * x + c * y + self.translation[1],
+            z + self.translation[2],
+        ]
+    }
+
+    /// Moves points and boxes together.
+    pub fn apply(&self, cloud: &mut FusedCloud, boxes: &mut [RawBox]) {
+        for i in 0..cloud.x.len().min(cloud.y.len()).min(cloud.z.len()) {
+            let p = self.point(cloud.x[i], cloud.y[i], cloud.z[i]);
+            cloud.x[i] = p[0];
+            cloud.y[i] = p[1];
+            cloud.z[i] = p[2];
+        }
+        for b in boxes {
+            let p = self.point(b[0], b[1], b[2]);
+            let yaw = if self.flip_y { -b[6] } else { b[6] };
+            *b = [p[0], p[1], p[2], b[3], b[4], b[5], yaw + self.yaw];
+        }
+    }
+}
+
+/// A sample ready for the network: the BEV of each branch and the targets.
+#[derive(Debug, Clone)]
+pub struct PreparedSample {
+    pub bevs: Vec<Option<Bev>>,
+    pub targets: Targets,
+    /// Boxes of the class learned as positives / as don't-care.
+    pub num_gt: usize,
+    pub num_dont_care: usize,
+}
+
+fn raw(b: &Box3d) -> RawBox {
+    [
+        b.center[0] as f32,
+        b.center[1] as f32,
+        b.center[2] as f32,
+        b.size_lwh[0] as f32,
+        b.size_lwh[1] as f32,
+        b.size_lwh[2] as f32,
+        b.yaw as f32,
+    ]
+}
+
+/// Points of `pts` inside an upright box (counted on the slices the case's branches see).
+fn points_in(b: &RawBox, parts: &[Option<PointsRef<'_>>]) -> usize {
+    let (s, c) = b[6].sin_cos();
+    let r = 0.5 * (b[3] * b[3] + b[4] * b[4]).sqrt();
+    let mut n = 0;
+    for p in parts.iter().flatten() {
+        for i in 0..p.len() {
+            let dx = p.x[i] - b[0];
+            let dy = p.y[i] - b[1];
+            if dx.abs() > r || dy.abs() > r {
+                continue;
+            }
+            let lx = c * dx + s * dy;
+            let ly = -s * dx + c * dy;
+            if lx.abs() <= 0.5 * b[3] && ly.abs() <= 0.5 * b[4] && (p.z[i] - b[2]).abs() <= 0.5 * b[5] {
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+/// Fuses (nominal extrinsics), augments, voxelises and assigns one frame.
+pub fn prepare_sample(
+    model: &Stage1Model,
+    frame: &Frame,
+    aug: Option<&Augmentation>,
+) -> Result<PreparedSample, DetectError> {
+    let cfg = &model.config;
+    let mut cloud = fuse(frame, &FuseParams::default())?;
+    let mut boxes: Vec<RawBox> = Vec::new();
+    for b in frame.boxes.iter().filter(|b| b.category == cfg.anchor.category) {
+        if b.box3d.is_valid() {
+            boxes.push(raw(&b.box3d));
+        }
+    }
+    if let Some(a) = aug {
+        a.apply(&mut cloud, &mut boxes);
+    }
+    let parts = branch_points(cfg.case, &cloud);
+    let (mut gts, mut dont_care) = (Vec::new(), Vec::new());
+    for b in boxes {
+        if points_in(&b, &parts) >= cfg.anchor.min_points {
+            gts.push(b);
+        } else {
+            dont_care.push(b);
+        }
+    }
+    let bevs = parts.iter().map(|p| p.map(|p| voxelize(&cfg.grid, p))).collect();
+    let targets = assign(&model.anchors, &cfg.anchor, &gts, &dont_care);
+    Ok(PreparedSample {
+        bevs,
+        targets,
+        num_gt: gts.len(),
+        num_dont_care: dont_care.len(),
+    })
+}
+
+/// The loss terms of one step.
+#[derive(Debug, Clone)]
+pub struct Losses {
+    pub total: Tensor,
+    pub cls: f32,
+    pub reg: f32,
+    pub dir: f32,
+    pub num_pos: usize,
+}
+
+/// Forward pass and SECOND's loss on a prepared sample.
+pub fn compute_loss(model: &Stage1Model, s: &PreparedSample) -> Result<Losses, DetectError> {
+    let dev = Device::Cpu;
+    let heads = model.forward(&s.bevs, true)?;
+    let t = &s.targets;
+    let n = t.labels.len();
+    let npos = t.positives.len();
+    let norm = npos.max(1) as f64;
+    let labels = Tensor::from_slice(&t.labels, n, &dev)?;
+    let weights = Tensor::from_slice(&t.cls_weights, n, &dev)?;
+    let cls = (sigmoid_focal_loss(&heads.cls, &labels, 0.25, 2.0)? * weights)?
+        .sum_all()?
+        .affine(1.0 / norm, 0.0)?;
+    let (reg, dir) = if npos > 0 {
+        let idx = Tensor::from_slice(&t.positives, npos, &dev)?;
+        let pred = heads.reg.index_select(&idx, 0)?;
+        let tgt = Tensor::from_slice(&t.reg, (npos, 7), &dev)?;
+        // SECOND's sin-difference: sin(p − t) = sin p cos t − cos p sin t, split over both sides.
+        let (p6, t6) = (pred.narrow(1, 6, 1)?, tgt.narrow(1, 6, 1)?);
+        let pred = Tensor::cat(&[pred.narrow(1, 0, 6)?, (p6.sin()? * t6.cos()?)?], 1)?;
+        let tgt = Tensor::cat(&[tgt.narrow(1, 0, 6)?, (p6.cos()? * t6.sin()?)?], 1)?;
+        let reg = smooth_l1(&(pred - tgt)?, 1.0 / 9.0)?
+            .sum_all()?
+            .affine(2.0 / norm, 0.0)?;
+        let dl = Tensor::from_slice(&t.dir, npos, &dev)?;
+        let dir = cross_entropy_rows(&heads.dir.index_select(&idx, 0)?, &dl)?
+            .sum_all()?
+            .affine(0.2 / norm, 0.0)?;
+        (reg, dir)
+    } else {
+        let z = Tensor::zeros((), DType::F32, &dev)?;
+        (z.clone(), z)
+    };
+    let (c, r, d) = (
+        cls.to_scalar::<f32>()?,
+        reg.to_scalar::<f32>()?,
+        dir.to_scalar::<f32>()?,
+    );
+    Ok(Losses {
+        total: ((cls + reg)? + dir)?,
+        cls: c,
+        reg: r,
+        dir: d,
+        num_pos: npos,
+    })
+}
+
+/// AdamW (decoupled weight decay) whose moments can be saved and restored.
+#[derive(Debug)]
+pub struct AdamW {
+    pub params: Vec<(String, Var)>,
+    pub m: Vec<Tensor>,
+    pub v: Vec<Tensor>,
+    pub step: u64,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+    pub weight_decay: f64,
+}
+
+impl AdamW {
+    /// The optimiser of a model's trainable variables (BatchNorm running statistics excluded).
+    pub fn new(model: &Stage1Model, weight_decay: f64) -> Result<Self, DetectError> {
+        let varmap = model
+            .varmap
+            .as_ref()
+            .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+        let mut params: Vec<(String, Var)> = data
+            .iter()
+            .filter(|(k, _)| !k.contains("running"))
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect();
+        params.sort_by(|a, b| a.0.cmp(&b.0));
+        let zeros = |p: &Var| p.as_tensor().zeros_like();
+        let m = params
+            .iter()
+            .map(|(_, p)| zeros(p))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        let v = params
+            .iter()
+            .map(|(_, p)| zeros(p))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        Ok(Self {
+            params,
+            m,
+            v,
+            step: 0,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            weight_decay,
+        })
+    }
+
+    /// One update with learning rate `lr`; gradients are scaled so their global norm is at most
+    /// `clip`. Returns the gradient norm before clipping.
+    pub fn update(
+        &mut self,
+        grads: &candle_core::backprop::GradStore,
+        lr: f64,
+        clip: f64,
+    ) -> Result<f64, DetectError> {
+        let mut sq = 0f64;
+        for (_, p) in &self.params {
+            if let Some(g) = grads.get(p.as_tensor()) {
+                sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+            }
+        }
+        let norm = sq.sqrt();
+        let scale = if norm.is_finite() && norm > clip {
+            clip / norm
+        } else {
+            1.0
+        };
+        if !norm.is_finite() {
+            return Err(DetectError::BadParameter(format!("gradient norm is {norm}")));
+        }
+        self.step += 1;
+        let t = self.step as i32;
+        let bc1 = 1.0 - self.beta1.powi(t);
+        let bc2 = 1.0 - self.beta2.powi(t);
+        for (k, (_, p)) in self.params.iter().enumerate() {
+            let Some(g) = grads.get(p.as_tensor()) else {
+                continue;
+            };
+            // Detached: the moments must not keep this step's graph alive into the next step.
+            let g = g.detach().affine(scale, 0.0)?;
+            let m = ((&self.m[k] * self.beta1)? + (&g * (1.0 - self.beta1))?)?;
+            let v = ((&self.v[k] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?;
+            let upd = ((&m / bc1)? / ((&v / bc2)?.sqrt()? + self.eps)?)?;
+            let next = ((p.as_tensor() * (1.0 - lr * self.weight_decay))? - (upd * lr)?)?;
+            p.set(&next.detach())?;
+            self.m[k] = m.detach();
+            self.v[k] = v.detach();
+        }
+        Ok(norm)
+    }
+}
+
+/// Training settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    pub case: Case,
+    pub dataset: PathBuf,
+    /// The final weights file.
+    pub out: PathBuf,
+    pub steps: u64,
+    pub seed: u64,
+    pub lr: f64,
+    pub warmup: u64,
+    pub weight_decay: f64,
+    /// Checkpoint file (weights + optimiser + step + loss rows).
+    pub checkpoint: PathBuf,
+    /// Seconds between checkpoints.
+    pub checkpoint_every_s: f64,
+    /// Loss curve CSV.
+    pub loss_csv: PathBuf,
+    pub resume: bool,
+    /// Use at most this many training samples (0: all).
+    pub max_samples: usize,
+    /// Start from these weights instead of random ones (a model of the same network shape; a
+    /// single-branch model also initialises every Feature Fusion branch). Ignored on resume.
+    pub init: Option<PathBuf>,
+    /// The command line, recorded in the manifest.
+    pub command: String,
+}
+
+impl TrainConfig {
+    pub fn new(case: Case, dataset: PathBuf, out: PathBuf) -> Self {
+        let checkpoint = out.with_extension("ckpt.safetensors");
+        let loss_csv = out.with_extension("loss.csv");
+        Self {
+            case,
+            dataset,
+            out,
+            steps: 8000,
+            seed: 0,
+            lr: 2e-3,
+            warmup: 200,
+            weight_decay: 0.01,
+            checkpoint,
+            checkpoint_every_s: 300.0,
+            loss_csv,
+            resume: false,
+            max_samples: 0,
+            init: None,
+            command: String::new(),
+        }
+    }
+
+    /// Learning rate at a step: linear warm-up, then cosine decay to 5% of `lr`.
+    pub fn lr_at(&self, step: u64) -> f64 {
+        if step < self.warmup {
+            return self.lr * (step + 1) as f64 / self.warmup as f64;
+        }
+        let span = self.steps.saturating_sub(self.warmup).max(1) as f64;
+        let p = ((step - self.warmup) as f64 / span).min(1.0);
+        self.lr * (0.05 + 0.95 * 0.5 * (1.0 + (std::f64::consts::PI * p).cos()))
+    }
+}
+
+/// One row of the loss curve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepRecord {
+    pub step: u64,
+    pub loss: f32,
+    pub cls: f32,
+    pub reg: f32,
+    pub dir: f32,
+    pub num_pos: usize,
+    pub lr: f64,
+    pub grad_norm: f64,
+    pub elapsed_s: f64,
+    /// Milliseconds spent on data (load, fuse, augment, voxelise, assign), forward + loss,
+    /// backward, and the optimiser update.
+    pub timing_ms: [f64; 4],
+}
+
+impl StepRecord {
+    pub const CSV_HEADER: &'static str = "step,loss,cls,reg,dir,num_pos,lr,grad_norm,elapsed_s";
+
+    pub fn csv(&self) -> String {
+        format!(
+            "{},{:.6},{:.6},{:.6},{:.6},{},{:.6e},{:.4},{:.2}",
+            self.step,
+            self.loss,
+            self.cls,
+            self.reg,
+            self.dir,
+            self.num_pos,
+            self.lr,
+            self.grad_norm,
+            self.elapsed_s
+        )
+    }
+}
+
+/// The train/validation split of a dataset by scene (see the module doc).
+pub fn split(dataset: &Dataset) -> (Vec<String>, Vec<String>) {
+    let mut scenes: Vec<String> = Vec::new();
+    let (mut train, mut val) = (Vec::new(), Vec::new());
+    for s in dataset.samples() {
+        let idx = match scenes.iter().position(|x| *x == s.scene_token) {
+            Some(i) => i,
+            None => {
+                scenes.push(s.scene_token.clone());
+                scenes.len() - 1
+            }
+        };
+        if idx % 10 == 9 {
+            val.push(s.sample_token);
+        } else {
+            train.push(s.sample_token);
+        }
+    }
+    (train, val)
+}
+
+/// The outcome of a training run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainSummary {
+    pub steps: u64,
+    pub wall_time_s: f64,
+    pub sha256: String,
+    pub out: PathBuf,
+}
+
+fn stream_rng(seed: u64, stream: u64) -> ChaCha8Rng {
+    let mut r = ChaCha8Rng::seed_from_u64(seed);
+    r.set_stream(stream);
+    r
+}
+
+struct Checkpoint {
+    step: u64,
+    elapsed_s: f64,
+    rows: Vec<String>,
+}
+
+fn save_checkpoint(
+    cfg: &TrainConfig,
+    model: &Stage1Model,
+    opt: &AdamW,
+    ck: &Checkpoint,
+) -> Result<(), DetectError> {
+    let mut extra = BTreeMap::new();
+    for (k, (name, _)) in opt.params.iter().enumerate() {
+        extra.insert(format!("optim.m.{name}"), opt.m[k].clone());
+        extra.insert(format!("optim.v.{name}"), opt.v[k].clone());
+    }
+    let mut meta = BTreeMap::new();
+    meta.insert("train.step".into(), ck.step.to_string());
+    meta.insert("train.elapsed_s".into(), format!("{}", ck.elapsed_s));
+    meta.insert("train.seed".into(), cfg.seed.to_string());
+    meta.insert("train.steps".into(), cfg.steps.to_string());
+    let bytes = model.to_safetensors(extra, meta)?;
+    crate::io::write_atomic(&cfg.checkpoint, &bytes)?;
+    let mut csv = String::from(StepRecord::CSV_HEADER);
+    csv.push('\n');
+    for r in &ck.rows {
+        csv.push_str(r);
+        csv.push('\n');
+    }
+    crate::io::write_atomic(&cfg.loss_csv, csv.as_bytes())?;
+    Ok(())
+}
+
+fn load_checkpoint(
+    cfg: &TrainConfig,
+    model: &Stage1Model,
+    opt: &mut AdamW,
+) -> Result<Checkpoint, DetectError> {
+    let path = &cfg.checkpoint;
+    let w = read_weights(path, None)?;
+    let bad = |what: String| DetectError::Weights {
+        path: path.clone(),
+        what,
+    };
+    let meta_cfg = w
+        .metadata
+        .get("mlod.config")
+        .ok_or_else(|| bad("no mlod.config".into()))?;
+    let ck_cfg: ModelConfig = serde_json::from_str(meta_cfg).map_err(|e| bad(e.to_string()))?;
+    if ck_cfg != model.config {
+        return Err(bad(format!(
+            "checkpoint is for another model ({:?})",
+            ck_cfg.case
+        )));
+    }
+    let seed: u64 = w
+        .metadata
+        .get("train.seed")
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(u64::MAX);
+    if seed != cfg.seed {
+        return Err(bad(format!(
+            "checkpoint seed {seed} differs from --seed {}",
+            cfg.seed
+        )));
+    }
+    let get = |name: &str| {
+        w.tensors
+            .get(name)
+            .ok_or_else(|| bad(format!("tensor {name} missing")))
+    };
+    if let Some(varmap) = &model.varmap {
+        let data = varmap.data().lock().map_err(|_| bad("lock poisoned".into()))?;
+        for (name, var) in data.iter() {
+            var.set(get(name)?)?;
+        }
+    }
+    for (k, (name, _)) in opt.params.iter().enumerate() {
+        opt.m[k] = get(&format!("optim.m.{name}"))?.clone();
+        opt.v[k] = get(&format!("optim.v.{name}"))?.clone();
+    }
+    let step: u64 = w
+        .metadata
+        .get("train.step")
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| bad("no train.step".into()))?;
+    opt.step = step;
+    let elapsed_s = w
+        .metadata
+        .get("train.elapsed_s")
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0.0);
+    // Loss rows up to the checkpoint's step (rows written later belong to the lost run).
+    let rows = std::fs::read_to_string(&cfg.loss_csv)
+        .unwrap_or_default()
+        .lines()
+        .skip(1)
+        .filter(|l| {
+            l.split(',')
+                .next()
+                .and_then(|s| s.parse::<u64>().ok())
+                .is_some_and(|s| s < step)
+        })
+        .map(str::to_string)
+        .collect();
+    Ok(Checkpoint {
+        step,
+        elapsed_s,
+        rows,
+    })
+}
+
+/// Copies weights from another model file into `model`: same names, or `middle.*` of a
+/// single-branch model into each `middle_<lidar>.*` branch of Feature Fusion.
+pub fn warm_start(model: &Stage1Model, path: &Path) -> Result<(), DetectError> {
+    let w = read_weights(path, None)?;
+    let varmap = model
+        .varmap
+        .as_ref()
+        .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+    for (name, var) in data.iter() {
+        let single = name
+            .strip_prefix("middle_")
+            .and_then(|rest| rest.split_once('.'))
+            .map(|(_, tail)| format!("middle.{tail}"));
+        let src = w
+            .tensors
+            .get(name)
+            .or_else(|| single.as_ref().and_then(|n| w.tensors.get(n)))
+            .ok_or_else(|| DetectError::Weights {
+                path: path.to_path_buf(),
+                what: format!("no tensor for {name}"),
+            })?;
+        if src.dims() != var.dims() {
+            return Err(DetectError::Weights {
+                path: path.to_path_buf(),
+                what: format!("{name} has shape {:?}, expected {:?}", src.dims(), var.dims()),
+            });
+        }
+        var.set(src)?;
+    }
+    Ok(())
+}
+
+/// Trains a stage-1 model (see the module doc). `on_step` sees every step's record.
+pub fn train_stage1(
+    cfg: &TrainConfig,
+    mut on_step: impl FnMut(&StepRecord),
+) -> Result<TrainSummary, DetectError> {
+    if !cfg.case.is_trainable() {
+        return Err(DetectError::BadParameter(
+            "Result Fusion is not trained: train top, left and right, then calibrate-temperature".into(),
+        ));
+    }
+    let dataset = Dataset::open(&cfg.dataset)?;
+    let (mut train, _) = split(&dataset);
+    if cfg.max_samples > 0 {
+        train.truncate(cfg.max_samples);
+    }
+    if train.is_empty() {
+        return Err(DetectError::BadParameter(format!(
+            "{}: no training samples",
+            cfg.dataset.display()
+        )));
+    }
+    let model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
+    let mut opt = AdamW::new(&model, cfg.weight_decay)?;
+    let mut ck = if cfg.resume && cfg.checkpoint.exists() {
+        load_checkpoint(cfg, &model, &mut opt)?
+    } else {
+        if let Some(init) = &cfg.init {
+            warm_start(&model, init)?;
+        }
+        Checkpoint {
+            step: 0,
+            elapsed_s: 0.0,
+            rows: Vec::new(),
+        }
+    };
+    let start = Instant::now();
+    let base_elapsed = ck.elapsed_s;
+    let mut last_ckpt = Instant::now();
+    let n = train.len() as u64;
+    let mut order: Vec<usize> = Vec::new();
+    let mut order_epoch = u64::MAX;
+    while ck.step < cfg.steps {
+        let step = ck.step;
+        let epoch = step / n;
+        if epoch != order_epoch {
+            order = (0..train.len()).collect();
+            order.shuffle(&mut stream_rng(cfg.seed, epoch));
+            order_epoch = epoch;
+        }
+        let token = &train[order[(step % n) as usize]];
+        let mut rng = stream_rng(cfg.seed, (1u64 << 32) + step);
+        let aug = Augmentation::draw(&mut rng);
+        let t0 = Instant::now();
+        let frame = dataset.frame(token)?;
+        let sample = prepare_sample(&model, &frame, aug.as_ref())?;
+        let t1 = Instant::now();
+        let losses = compute_loss(&model, &sample)?;
+        let t2 = Instant::now();
+        let grads = losses.total.backward()?;
+        let t3 = Instant::now();
+        let lr = cfg.lr_at(step);
+        let grad_norm = opt.update(&grads, lr, 10.0)?;
+        let timing_ms = [
+            (t1 - t0).as_secs_f64() * 1e3,
+            (t2 - t1).as_secs_f64() * 1e3,
+            (t3 - t2).as_secs_f64() * 1e3,
+            t3.elapsed().as_secs_f64() * 1e3,
+        ];
+        ck.step += 1;
+        ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
+        let rec = StepRecord {
+            step,
+            loss: losses.cls + losses.reg + losses.dir,
+            cls: losses.cls,
+            reg: losses.reg,
+            dir: losses.dir,
+            num_pos: losses.num_pos,
+            lr,
+            grad_norm,
+            elapsed_s: ck.elapsed_s,
+            timing_ms,
+        };
+        ck.rows.push(rec.csv());
+        on_step(&rec);
+        if last_ckpt.elapsed().as_secs_f64() >= cfg.checkpoint_every_s {
+            save_checkpoint(cfg, &model, &opt, &ck)?;
+            last_ckpt = Instant::now();
+        }
+    }
+    save_checkpoint(cfg, &model, &opt, &ck)?;
+    let mut meta = BTreeMap::new();
+    meta.insert("train.steps".into(), ck.step.to_string());
+    meta.insert("train.seed".into(), cfg.seed.to_string());
+    let bytes = model.to_safetensors(BTreeMap::new(), meta)?;
+    crate::io::write_atomic(&cfg.out, &bytes)?;
+    let sha256 = sha256_hex(&bytes);
+    // Record the model in the manifest beside it.
+    if let Some(dir) = cfg.out.parent() {
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        let mut manifest = Manifest::load(dir).unwrap_or_default();
+        let file = cfg
+            .out
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let init = cfg.init.as_deref().map(InitRecord::of_file);
+        manifest.models.insert(
+            cfg.case,
+            ModelEntry {
+                file,
+                sha256: sha256.clone(),
+                command: cfg.command.clone(),
+                seed: cfg.seed,
+                steps: ck.step,
+                wall_time_s: ck.elapsed_s,
+                test_ap: BTreeMap::new(),
+                init,
+            },
+        );
+        manifest.save(dir)?;
+    }
+    Ok(TrainSummary {
+        steps: ck.step,
+        wall_time_s: ck.elapsed_s,
+        sha256,
+        out: cfg.out.clone(),
+    })
+}
+
+/// Fits the temperature T of sigmoid(logit / T) minimising the NLL of TP (1) / FP (0) labels, by
+/// golden-section search on ln T ∈ [−4, 4] (the NLL is unimodal in T for these data).
+pub fn fit_temperature(logits: &[f32], labels: &[bool]) -> f64 {
+    let nll = |t: f64| -> f64 {
+        logits
+            .iter()
+            .zip(labels)
+            .map(|(&z, &y)| {
+                let x = z as f64 / t;
+                // −ln σ(x) = softplus(−x), −ln(1 − σ(x)) = softplus(x).
+                let sp = |v: f64| v.max(0.0) + (-v.abs()).exp().ln_1p();
+                if y {
+                    sp(-x)
+                } else {
+                    sp(x)
+                }
+            })
+            .sum()
+    };
+    if logits.is_empty() {
+        return 1.0;
+    }
+    let (mut a, mut b) = (-4f64, 4f64);
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+    let (mut fc, mut fd) = (nll(c.exp()), nll(d.exp()));
+    for _ in 0..80 {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = nll(c.exp());
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + g * (b - a);
+            fd = nll(d.exp());
+        }
+    }
+    (0.5 * (a + b)).exp()
+}
+
+/// TP / FP labels of detections against ground-truth boxes of their class: greedy by score, a
+/// detection is a TP when its 3D IoU with a not yet matched box is at least `iou`.
+pub fn label_detections(dets: &[(super::Detection, f32)], gts: &[Box3d], iou: f64) -> Vec<bool> {
+    let mut used = vec![false; gts.len()];
+    let mut order: Vec<usize> = (0..dets.len()).collect();
+    order.sort_by(|&a, &b| dets[b].0.score.total_cmp(&dets[a].0.score).then(a.cmp(&b)));
+    let mut out = vec![false; dets.len()];
+    for i in order {
+        let mut best: Option<(usize, f64)> = None;
+        for (j, g) in gts.iter().enumerate() {
+            if used[j] {
+                continue;
+            }
+            let v = iou_3d(&dets[i].0.box3d, g);
+            if v >= iou && best.is_none_or(|(_, b)| v > b) {
+                best = Some((j, v));
+            }
+        }
+        if let Some((j, _)) = best {
+            used[j] = true;
+            out[i] = true;
+        }
+    }
+    out
+}
+
+/// Fits Result Fusion's temperature for each single-LiDAR generator on the validation split of
+/// `dataset` (at most `max_samples` samples) and writes them into the models folder's manifest.
+pub fn calibrate_temperatures(
+    dataset_dir: &Path,
+    models_dir: &Path,
+    max_samples: usize,
+    iou: f64,
+    command: &str,
+    mut on_sample: impl FnMut(Case, usize, usize),
+) -> Result<BTreeMap<Case, f64>, DetectError> {
+    let dataset = Dataset::open(dataset_dir)?;
+    let (_, mut val) = split(&dataset);
+    if max_samples > 0 {
+        val.truncate(max_samples);
+    }
+    let mut manifest = Manifest::load(models_dir)?;
+    let mut temps = BTreeMap::new();
+    for case in [Case::Top, Case::Left, Case::Right] {
+        let model = Stage1Model::load_shipped(models_dir, case)?;
+        let (mut logits, mut labels) = (Vec::new(), Vec::new());
+        for (k, token) in val.iter().enumerate() {
+            let frame = dataset.frame(token)?;
+            let cloud = fuse(&frame, &FuseParams::default())?;
+            if case.channel().is_some_and(|ch| frame.lidar(ch).is_none()) {
+                continue;
+            }
+            let dets = model.detect_cloud_logits(&cloud)?;
+            let gts: Vec<Box3d> = frame
+                .boxes
+                .iter()
+                .filter(|b| b.category == model.config.anchor.category)
+                .map(|b| b.box3d)
+                .collect();
+            labels.extend(label_detections(&dets, &gts, iou));
+            logits.extend(dets.iter().map(|d| d.1));
+            on_sample(case, k + 1, val.len());
+        }
+        temps.insert(case, fit_temperature(&logits, &labels));
+    }
+    manifest.temperatures = temps.clone();
+    manifest.temperature_command = command.to_string();
+    manifest.save(models_dir)?;
+    Ok(temps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temperature_fit_recovers_a_known_temperature() {
+        // Labels drawn as Bernoulli(σ(z / 3)) ⇒ the fitted T is near 3.
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (mut z, mut y) = (Vec::new(), Vec::new());
+        for _ in 0..20000 {
+            let l: f32 = rng.random_range(-12.0..12.0);
+            let p = 1.0 / (1.0 + (-(l as f64) / 3.0).exp());
+            z.push(l);
+            y.push(rng.random::<f64>() < p);
+        }
+        let t = fit_temperature(&z, &y);
+        assert!((t - 3.0).abs() < 0.2, "{t}");
+    }
+
+    #[test]
+    fn augmentation_moves_points_and_boxes_together() {
+        let a = Augmentation {
+            flip_y: true,
+            yaw: 0.05,
+            translation: [0.3, -0.2, 0.1],
+        };
+        let b = Box3d::new([10.0, 4.0, -1.0], [4.5, 1.9, 1.6], 0.7);
+        let p_local = [1.5f64, 0.5, 0.3];
+        let (s, c) = b.yaw.sin_cos();
+        let p = [
+            b.center[0] + c * p_local[0] - s * p_local[1],
+            b.center[1] + s * p_local[0] + c * p_local[1],
+            b.center[2] + p_local[2],
+        ];
+        let mut cloud = FusedCloud {
+            x: vec![p[0] as f32],
+            y: vec![p[1] as f32],
+            z: vec![p[2] as f32],
+            intensity: vec![0.0],
+            ..Default::default()
+        };
+        let mut boxes = [raw(&b)];
+        a.apply(&mut cloud, &mut boxes);
+        let nb = Box3d::new(
+            [boxes[0][0] as f64, boxes[0][1] as f64, boxes[0][2] as f64],
+            [4.5, 1.9, 1.6],
+            boxes[0][6] as f64,
+        );
+        let q = nb.to_local([cloud.x[0] as f64, cloud.y[0] as f64, cloud.z[0] as f64]);
+        // Mirrored: the local y flips sign, x and z are kept.
+        assert!(
+            (q[0] - 1.5).abs() < 1e-4 && (q[1] + 0.5).abs() < 1e-4 && (q[2] - 0.3).abs() < 1e-4,
+            "{q:?}"
+        );
+    }
+}
+
+#[cfg(test)]
+mod training_tests {
+    use super::*;
+
+    #[test]
+    fn a_few_training_steps_lower_the_loss_on_a_sample_frame() {
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let token = ds.first_sample_token().unwrap().to_string();
+        let frame = ds.frame(&token).unwrap();
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Input), 11).unwrap();
+        let sample = prepare_sample(&model, &frame, None).unwrap();
+        assert!(sample.num_gt > 0 && !sample.targets.positives.is_empty());
+        let mut opt = AdamW::new(&model, 0.01).unwrap();
+        let mut losses = Vec::new();
+        for _ in 0..6 {
+            let l = compute_loss(&model, &sample).unwrap();
+            losses.push(l.cls + l.reg + l.dir);
+            let g = l.total.backward().unwrap();
+            opt.update(&g, 2e-3, 10.0).unwrap();
+        }
+        let after = compute_loss(&model, &sample).unwrap();
+        let last = after.cls + after.reg + after.dir;
+        assert!(losses.iter().all(|l| l.is_finite()));
+        assert!(last < 0.8 * losses[0], "loss {losses:?} -> {last}");
+    }
+}

@@ -1,0 +1,273 @@
+//! Weights on disk: safetensors files (`assets/models/<case>.safetensors`) whose `__metadata__`
+//! holds the model configuration, and `assets/models/manifest.json` with each file's sha256, the
+//! exact command, seed, steps, wall time and test-split AP.
+//!
+//! How it works: the writer lays out the safetensors format itself (8-byte little-endian header
+//! length, JSON header with dtype/shape/offsets per tensor in name order, then the raw
+//! little-endian f32 data), so a file is built in memory and written atomically, and the same
+//! weights always give the same bytes. Reading hashes the bytes first; a checksum that differs from
+//! the manifest, a truncated file or a bad header is a [`DetectError`] naming the file.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::{Case, DetectError};
+
+/// The sha256 of bytes, lowercase hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Serialises f32 tensors and string metadata as a safetensors file (tensors sorted by name).
+pub fn encode_safetensors(
+    tensors: &BTreeMap<String, Tensor>,
+    metadata: &BTreeMap<String, String>,
+) -> Result<Vec<u8>, DetectError> {
+    let mut header = serde_json::Map::new();
+    header.insert(
+        "__metadata__".into(),
+        serde_json::to_value(metadata).map_err(bad_json)?,
+    );
+    let mut data: Vec<u8> = Vec::new();
+    for (name, t) in tensors {
+        let v: Vec<f32> = t.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1()?;
+        let start = data.len();
+        for x in &v {
+            data.extend_from_slice(&x.to_le_bytes());
+        }
+        header.insert(
+            name.clone(),
+            serde_json::json!({"dtype": "F32", "shape": t.dims(), "data_offsets": [start, data.len()]}),
+        );
+    }
+    let mut h = serde_json::to_vec(&serde_json::Value::Object(header)).map_err(bad_json)?;
+    // Pad the header to a multiple of 8 bytes with spaces (the format allows it).
+    while h.len() % 8 != 0 {
+        h.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + h.len() + data.len());
+    out.extend_from_slice(&(h.len() as u64).to_le_bytes());
+    out.extend_from_slice(&h);
+    out.extend_from_slice(&data);
+    Ok(out)
+}
+
+fn bad_json(e: serde_json::Error) -> DetectError {
+    DetectError::BadParameter(format!("cannot serialise: {e}"))
+}
+
+/// A weights file read from disk.
+#[derive(Debug, Clone)]
+pub struct WeightsFile {
+    pub path: PathBuf,
+    pub sha256: String,
+    pub tensors: HashMap<String, Tensor>,
+    pub metadata: BTreeMap<String, String>,
+}
+
+/// Reads a safetensors file; with `expected_sha256` the bytes must hash to it.
+pub fn read_weights(path: &Path, expected_sha256: Option<&str>) -> Result<WeightsFile, DetectError> {
+    let bytes = std::fs::read(path).map_err(|e| crate::io::IoError::new("cannot read", path, e))?;
+    let sha = sha256_hex(&bytes);
+    if let Some(expected) = expected_sha256 {
+        if !sha.eq_ignore_ascii_case(expected) {
+            return Err(DetectError::Checksum {
+                path: path.to_path_buf(),
+                expected: expected.to_string(),
+                actual: sha,
+            });
+        }
+    }
+    let bad = |what: String| DetectError::Weights {
+        path: path.to_path_buf(),
+        what,
+    };
+    let len_bytes: [u8; 8] = bytes.get(..8).and_then(|b| b.try_into().ok()).ok_or_else(|| {
+        bad(format!(
+            "{} bytes is too short for a safetensors file",
+            bytes.len()
+        ))
+    })?;
+    let n = u64::from_le_bytes(len_bytes) as usize;
+    let header = bytes
+        .get(8..8usize.saturating_add(n))
+        .ok_or_else(|| bad(format!("header of {n} bytes runs past the end of the file")))?;
+    let header: serde_json::Value =
+        serde_json::from_slice(header).map_err(|e| bad(format!("header is not JSON: {e}")))?;
+    let metadata: BTreeMap<String, String> = match header.get("__metadata__") {
+        Some(m) => serde_json::from_value(m.clone()).map_err(|e| bad(format!("bad __metadata__: {e}")))?,
+        None => BTreeMap::new(),
+    };
+    let tensors =
+        candle_core::safetensors::load_buffer(&bytes, &Device::Cpu).map_err(|e| bad(e.to_string()))?;
+    Ok(WeightsFile {
+        path: path.to_path_buf(),
+        sha256: sha,
+        tensors,
+        metadata,
+    })
+}
+
+/// Where and how one shipped model was made.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelEntry {
+    /// File name relative to the manifest's folder.
+    pub file: String,
+    pub sha256: String,
+    /// The exact command that trained it.
+    pub command: String,
+    pub seed: u64,
+    pub steps: u64,
+    /// Wall time of the training (s).
+    pub wall_time_s: f64,
+    /// Test-split AP figures (filled by `mlod eval`), e.g. `{"moderate_ap3d_0.7": 61.2}`.
+    #[serde(default)]
+    pub test_ap: BTreeMap<String, f64>,
+    /// The weights this training started from (`--init`), if it was a warm start.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<InitRecord>,
+}
+
+/// The starting point of a warm-started training: file name and its sha256 when it was read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InitRecord {
+    pub file: String,
+    pub sha256: String,
+    /// The starting model's own manifest entry (from the manifest beside it, matched by sha256),
+    /// so the whole chain of trainings stays on record.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entry: Option<Box<ModelEntry>>,
+}
+
+impl InitRecord {
+    /// Describes the weights file `path`: its name, sha256 and, when the manifest in its folder
+    /// lists a model with that checksum, that entry.
+    pub fn of_file(path: &Path) -> Self {
+        let file = path
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let sha256 = match std::fs::read(path) {
+            Ok(b) => sha256_hex(&b),
+            Err(e) => {
+                return Self {
+                    file,
+                    sha256: format!("unreadable: {e}"),
+                    entry: None,
+                }
+            }
+        };
+        let entry = path
+            .parent()
+            .and_then(|d| {
+                Manifest::load(if d.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    d
+                })
+                .ok()
+            })
+            .and_then(|m| m.models.into_values().find(|e| e.sha256 == sha256))
+            .map(Box::new);
+        Self { file, sha256, entry }
+    }
+}
+
+/// `assets/models/manifest.json`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Manifest {
+    /// Per trained case.
+    pub models: BTreeMap<Case, ModelEntry>,
+    /// Result Fusion's temperature per generator (`top`, `left`, `right`), fitted on validation.
+    #[serde(default)]
+    pub temperatures: BTreeMap<Case, f64>,
+    /// How the temperatures were fitted.
+    #[serde(default)]
+    pub temperature_command: String,
+}
+
+impl Manifest {
+    pub const FILE: &'static str = "manifest.json";
+
+    /// Reads `dir/manifest.json`.
+    pub fn load(dir: &Path) -> Result<Self, DetectError> {
+        let path = dir.join(Self::FILE);
+        let bytes = std::fs::read(&path).map_err(|e| crate::io::IoError::new("cannot read", &path, e))?;
+        serde_json::from_slice(&bytes).map_err(|e| DetectError::Manifest {
+            path,
+            what: e.to_string(),
+        })
+    }
+
+    /// Writes `dir/manifest.json` atomically.
+    pub fn save(&self, dir: &Path) -> Result<(), DetectError> {
+        let mut s = serde_json::to_string_pretty(self).map_err(bad_json)?;
+        s.push('\n');
+        crate::io::write_atomic(&dir.join(Self::FILE), s.as_bytes())?;
+        Ok(())
+    }
+
+    /// The entry of a case, or an error naming the manifest.
+    pub fn entry(&self, dir: &Path, case: Case) -> Result<&ModelEntry, DetectError> {
+        self.models.get(&case).ok_or_else(|| DetectError::Manifest {
+            path: dir.join(Self::FILE),
+            what: format!("no model for case {case}"),
+        })
+    }
+}
+
+/// The default model folder: `assets/models` of the crate.
+pub fn default_models_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("assets")
+        .join("models")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn safetensors_round_trip_and_corruption_is_named() {
+        let mut t = BTreeMap::new();
+        t.insert(
+            "a.weight".to_string(),
+            Tensor::new(&[[1f32, -2.5], [3.0, 4.0]], &Device::Cpu).unwrap(),
+        );
+        t.insert("b".to_string(), Tensor::new(&[0.5f32], &Device::Cpu).unwrap());
+        let mut m = BTreeMap::new();
+        m.insert("case".to_string(), "top".to_string());
+        let bytes = encode_safetensors(&t, &m).unwrap();
+        assert_eq!(bytes, encode_safetensors(&t, &m).unwrap(), "deterministic");
+        let dir = std::env::temp_dir().join(format!("mlod-weights-{}", std::process::id()));
+        let p = dir.join("w.safetensors");
+        crate::io::write_atomic(&p, &bytes).unwrap();
+        let w = read_weights(&p, Some(&sha256_hex(&bytes))).unwrap();
+        assert_eq!(w.metadata, m);
+        let a: Vec<Vec<f32>> = w.tensors["a.weight"].to_vec2().unwrap();
+        assert_eq!(a, vec![vec![1.0, -2.5], vec![3.0, 4.0]]);
+        // One flipped byte: the checksum names the file.
+        let mut bad = bytes.clone();
+        let last = bad.len() - 1;
+        bad[last] ^= 1;
+        crate::io::write_atomic(&p, &bad).unwrap();
+        let e = read_weights(&p, Some(&sha256_hex(&bytes))).unwrap_err();
+        assert!(
+            matches!(e, DetectError::Checksum { .. }) && e.to_string().contains("w.safetensors"),
+            "{e}"
+        );
+        // Truncated, no checksum given: a format error naming the file.
+        crate::io::write_atomic(&p, &bytes[..20]).unwrap();
+        let e = read_weights(&p, None).unwrap_err();
+        assert!(
+            matches!(e, DetectError::Weights { .. }) && e.to_string().contains("w.safetensors"),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

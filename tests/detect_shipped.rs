@@ -1,0 +1,75 @@
+//! The shipped stage-1 weights (`assets/models/`) reproduce the committed detections on two
+//! sample_data frames bit for bit, for every case the manifest lists (Result Fusion when its three
+//! generators are there). `MLOD_BLESS=1 cargo test --test detect_shipped` rewrites the fixtures
+//! after a deliberate change of the weights.
+
+use std::path::Path;
+
+use mlod::detect::model::load_detector;
+use mlod::detect::weights::{default_models_dir, Manifest};
+use mlod::detect::Case;
+use mlod::lyft::Dataset;
+use mlod::pipeline::FuseParams;
+
+#[test]
+fn shipped_weights_reproduce_committed_detections() {
+    let models = default_models_dir();
+    let Ok(manifest) = Manifest::load(&models) else {
+        eprintln!("no assets/models/manifest.json yet: nothing to check");
+        return;
+    };
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+    let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
+    let bless = std::env::var_os("MLOD_BLESS").is_some();
+    let mut checked = 0;
+    for case in Case::ALL {
+        let available = match case {
+            Case::Result => [Case::Top, Case::Left, Case::Right]
+                .iter()
+                .all(|c| manifest.models.contains_key(c)),
+            c => manifest.models.contains_key(&c),
+        };
+        if !available {
+            continue;
+        }
+        let det = load_detector(&models, case).unwrap();
+        for token in &tokens {
+            let frame = ds.frame(token).unwrap();
+            let dets = det.detect(&frame, &FuseParams::default()).unwrap();
+            let json = serde_json::to_string_pretty(&dets).unwrap() + "\n";
+            let path = fixtures.join(format!("{case}-{}.json", &token[..12]));
+            if bless {
+                mlod::io::write_atomic(&path, json.as_bytes()).unwrap();
+            }
+            let committed = std::fs::read_to_string(&path)
+                .unwrap_or_else(|e| panic!("{}: {e} (run with MLOD_BLESS=1 to create it)", path.display()));
+            assert!(
+                committed == json,
+                "{case} on {token}: detections differ from {}",
+                path.display()
+            );
+            checked += 1;
+        }
+    }
+    eprintln!("checked {checked} (case, frame) pairs");
+}
+
+#[test]
+fn warm_started_models_name_shipped_starting_weights() {
+    let models = default_models_dir();
+    let Ok(manifest) = Manifest::load(&models) else {
+        return;
+    };
+    for (case, entry) in &manifest.models {
+        let Some(init) = &entry.init else { continue };
+        // The starting weights ship in assets/models/init/ with the checksum the manifest names,
+        // and their own entry (command, seed, steps) is on record.
+        let path = models.join("init").join(&init.file);
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{case}: {}: {e}", path.display()));
+        assert_eq!(mlod::detect::weights::sha256_hex(&bytes), init.sha256, "{case}");
+        let from = init.entry.as_ref().expect("the starting model's entry");
+        assert_eq!(from.sha256, init.sha256);
+        assert!(from.command.contains("train stage1") && from.steps > 0);
+    }
+}
