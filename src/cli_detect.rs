@@ -73,6 +73,37 @@ pub struct CalibrateArgs {
     iou: f64,
 }
 
+/// Which shipped detector weights to run, on which perturbation: shared by `mlod detect`,
+/// `mlod eval --case` and `mlod table1`.
+#[derive(clap::Args)]
+pub struct DetectorRun {
+    /// α of the perturbation injected into the auxiliary LiDARs (one draw, the same
+    /// mis-calibration for every sample, as on one car).
+    #[arg(long, default_value_t = 0.0, value_parser = crate::parse_alpha)]
+    pub alpha: f64,
+    /// Seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+}
+
+impl DetectorRun {
+    /// The models folder asked for, or the shipped one.
+    pub fn models_dir(&self) -> PathBuf {
+        self.models.clone().unwrap_or_else(default_models_dir)
+    }
+
+    /// Fuse parameters with the perturbation asked for.
+    pub fn fuse_params(&self) -> Result<FuseParams> {
+        Ok(FuseParams {
+            perturbation: mlod::uncertainty::Perturbation::new(self.alpha, self.seed)?,
+            ..Default::default()
+        })
+    }
+}
+
 #[derive(clap::Args)]
 pub struct DetectArgs {
     #[arg(long)]
@@ -82,15 +113,8 @@ pub struct DetectArgs {
     sample: Option<String>,
     #[arg(long)]
     case: Case,
-    /// α of the injected perturbation of the auxiliary LiDARs.
-    #[arg(long, default_value_t = 0.0)]
-    alpha: f64,
-    /// Seed of the perturbation draw.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Models folder with manifest.json (default: assets/models).
-    #[arg(long)]
-    models: Option<PathBuf>,
+    #[command(flatten)]
+    run: DetectorRun,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -199,12 +223,8 @@ pub fn detect(a: DetectArgs) -> Result<()> {
             .to_string(),
     };
     let frame = dataset.frame(&token)?;
-    let params = FuseParams {
-        perturbation: mlod::uncertainty::Perturbation::new(a.alpha, a.seed)?,
-        ..Default::default()
-    };
-    let models = a.models.unwrap_or_else(default_models_dir);
-    let detector = load_detector(&models, a.case)?;
+    let params = a.run.fuse_params()?;
+    let detector = load_detector(&a.run.models_dir(), a.case)?;
     let t0 = std::time::Instant::now();
     let dets = detector.detect(&frame, &params)?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;

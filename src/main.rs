@@ -80,20 +80,14 @@ struct Table1Args {
     /// A Lyft-format dataset (the held-out test split).
     #[arg(long)]
     dataset: PathBuf,
-    /// Models folder with manifest.json (default: assets/models).
-    #[arg(long)]
-    models: Option<PathBuf>,
     /// Only these cases (comma separated; default: all six).
     #[arg(long, value_delimiter = ',')]
     cases: Vec<mlod::detect::Case>,
     /// Evaluate only the first N samples.
     #[arg(long)]
     samples: Option<usize>,
-    /// α of the perturbation of the auxiliary LiDARs (one draw for the whole split).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
-    alpha: f64,
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[command(flatten)]
+    run: cli_detect::DetectorRun,
     /// Write every case's whole evaluation report here as JSON (atomically).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -114,16 +108,9 @@ struct EvalArgs {
     /// Instead of --pred: run this stage-1 detector (shipped weights) over the samples.
     #[arg(long)]
     case: Option<mlod::detect::Case>,
-    /// With --case: α of the perturbation injected into the auxiliary LiDARs (one draw, the same
-    /// mis-calibration for every sample, as on one car).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
-    alpha: f64,
-    /// With --case: seed of the perturbation draw.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// With --case: models folder with manifest.json (default: assets/models).
-    #[arg(long)]
-    models: Option<PathBuf>,
+    // With --case: the perturbation and the models folder.
+    #[command(flatten)]
+    run: cli_detect::DetectorRun,
     /// Evaluate only the first N samples of the dataset.
     #[arg(long)]
     samples: Option<usize>,
@@ -699,14 +686,8 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         ..Default::default()
     };
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
-    let models = args
-        .models
-        .clone()
-        .unwrap_or_else(mlod::detect::weights::default_models_dir);
-    let params = mlod::pipeline::FuseParams {
-        perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
-        ..Default::default()
-    };
+    let models = args.run.models_dir();
+    let params = args.run.fuse_params()?;
     let cases = if args.cases.is_empty() {
         Case::ALL.to_vec()
     } else {
@@ -741,7 +722,7 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         "Car AP_3D (%), R40, {} samples of {}, α = {}",
         tokens.len(),
         args.dataset.display(),
-        args.alpha
+        args.run.alpha
     );
     println!();
     println!("| Method | Easy@0.7 | Mod.@0.7 | Hard@0.7 | Easy@0.5 | Mod.@0.5 | Hard@0.5 |");
@@ -757,8 +738,8 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         let doc = serde_json::json!({
             "dataset": args.dataset,
             "samples": tokens.len(),
-            "alpha": args.alpha,
-            "seed": args.seed,
+            "alpha": args.run.alpha,
+            "seed": args.run.seed,
             "reports": reports,
         });
         mlod::io::write_atomic(
@@ -805,15 +786,8 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
     let Some(pred_path) = &args.pred else {
         let case = args.case.context("give --pred FILE or --case CASE")?;
-        let models = args
-            .models
-            .clone()
-            .unwrap_or_else(mlod::detect::weights::default_models_dir);
-        let params = mlod::pipeline::FuseParams {
-            perturbation: mlod::uncertainty::Perturbation::new(args.alpha, args.seed)?,
-            ..Default::default()
-        };
-        let report = run_case(&dataset, &tokens, &models, case, &params, &opts)?;
+        let params = args.run.fuse_params()?;
+        let report = run_case(&dataset, &tokens, &args.run.models_dir(), case, &params, &opts)?;
         return print_eval(&args, &report);
     };
     let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();

@@ -32,7 +32,7 @@ use super::anchors::{assign, RawBox, Targets};
 use super::model::{branch_points, ModelConfig, Stage1Model};
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 use super::voxel::{voxelize, Bev, PointsRef};
-use super::weights::{read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
+use super::weights::{file_name_of, folder_of, read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
 use super::{Case, DetectError};
 use crate::geometry::{iou_3d, Box3d};
 use crate::lyft::{Dataset, Frame};
@@ -703,18 +703,9 @@ pub fn train_stage1(
     crate::io::write_atomic(&cfg.out, &bytes)?;
     let sha256 = sha256_hex(&bytes);
     // Record the model in the manifest beside it.
-    if let Some(dir) = cfg.out.parent() {
-        let dir = if dir.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            dir
-        };
+    if let Some(dir) = folder_of(&cfg.out) {
         let mut manifest = Manifest::load(dir).unwrap_or_default();
-        let file = cfg
-            .out
-            .file_name()
-            .map(|f| f.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let file = file_name_of(&cfg.out);
         let init = cfg.init.as_deref().map(InitRecord::of_file);
         manifest.models.insert(
             cfg.case,

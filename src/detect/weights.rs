@@ -148,10 +148,7 @@ impl InitRecord {
     /// Describes the weights file `path`: its name, sha256 and, when the manifest in its folder
     /// lists a model with that checksum, that entry.
     pub fn of_file(path: &Path) -> Self {
-        let file = path
-            .file_name()
-            .map(|f| f.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let file = file_name_of(path);
         let sha256 = match std::fs::read(path) {
             Ok(b) => sha256_hex(&b),
             Err(e) => {
@@ -162,16 +159,8 @@ impl InitRecord {
                 }
             }
         };
-        let entry = path
-            .parent()
-            .and_then(|d| {
-                Manifest::load(if d.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    d
-                })
-                .ok()
-            })
+        let entry = folder_of(path)
+            .and_then(|d| Manifest::load(d).ok())
             .and_then(|m| m.models.into_values().find(|e| e.sha256 == sha256))
             .map(Box::new);
         Self { file, sha256, entry }
@@ -219,6 +208,24 @@ impl Manifest {
             what: format!("no model for case {case}"),
         })
     }
+}
+
+/// The folder whose manifest lists a weights file: its parent (`.` for a bare file name).
+pub(crate) fn folder_of(path: &Path) -> Option<&Path> {
+    path.parent().map(|d| {
+        if d.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            d
+        }
+    })
+}
+
+/// A weights file's name as its manifest entry records it.
+pub(crate) fn file_name_of(path: &Path) -> String {
+    path.file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// The default model folder: `assets/models` of the crate.

@@ -315,15 +315,7 @@ fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, LyftError> {
     Ok(SampleTruth {
         token: token.to_owned(),
         base_to_global,
-        gts: info
-            .boxes
-            .iter()
-            .map(|b| Detection {
-                box3d: b.box3d,
-                score: 1.0,
-                category: b.category.clone(),
-            })
-            .collect(),
+        gts: info.boxes.iter().map(|b| b.as_detection()).collect(),
         gt_tokens: info.boxes.iter().map(|b| b.annotation_token.clone()).collect(),
         lyft,
     })

@@ -399,16 +399,7 @@ impl MlodApp {
         let gts: Vec<Detection> = self
             .frame
             .as_ref()
-            .map(|f| {
-                f.boxes
-                    .iter()
-                    .map(|b| Detection {
-                        box3d: b.box3d,
-                        score: 1.0,
-                        category: b.category.clone(),
-                    })
-                    .collect()
-            })
+            .map(|f| f.boxes.iter().map(|b| b.as_detection()).collect())
             .unwrap_or_default();
         let rule = MatchRule {
             iou_threshold: self.session.detection.match_iou,

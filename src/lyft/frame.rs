@@ -84,6 +84,18 @@ pub struct GtBox {
     pub num_lidar_pts: i64,
 }
 
+impl GtBox {
+    /// The box as a detection of its category with score 1 (how evaluation and the GUI match
+    /// predictions against it).
+    pub fn as_detection(&self) -> crate::geometry::Detection {
+        crate::geometry::Detection {
+            box3d: self.box3d,
+            score: 1.0,
+            category: self.category.clone(),
+        }
+    }
+}
+
 /// A sample's LiDAR layout and boxes, without the points.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameInfo {
