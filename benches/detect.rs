@@ -1,6 +1,7 @@
 //! Stage-1 detector cost on this CPU (issue 6): inference per sample for each case — fuse,
 //! voxelise, network, decoding and NMS — on a sample_data frame (target ≤ 150 ms on 2 cores), and
-//! one training step (data, forward, backward, AdamW) of Input Fusion. Uses the shipped weights
+//! one training step (data, forward, backward, AdamW) of Input Fusion; and the network alone,
+//! candle's graph against the folded inference network. Uses the shipped weights
 //! when `assets/models/manifest.json` lists them, else seeded random weights (same cost, but
 //! random weights give few boxes, so decoding/NMS is cheaper than with trained ones).
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -9,7 +10,7 @@ use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, Detector, ModelConfig, ResultFusion, Stage1Model};
 use mlod::lyft::Dataset;
-use mlod::pipeline::FuseParams;
+use mlod::pipeline::{fuse, FuseParams};
 use std::hint::black_box;
 
 fn detector(case: Case) -> Box<dyn Detector> {
@@ -42,6 +43,23 @@ fn bench(c: &mut Criterion) {
             b.iter(|| black_box(d.detect(&frame, &params).expect("detect")))
         });
     }
+    g.finish();
+    // The network alone on one BEV: candle's graph (what training runs) against the folded
+    // inference network (what detection runs).
+    let mut g = c.benchmark_group("network");
+    g.sample_size(10);
+    let top = Stage1Model::load_shipped(&default_models_dir(), Case::Top)
+        .or_else(|_| Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1))
+        .expect("model");
+    let cloud = fuse(&frame, &params).expect("fuse");
+    let bevs = top.voxelize(&cloud);
+    let folded = top.fast_net().expect("folded network");
+    g.bench_function("top_candle", |b| {
+        b.iter(|| black_box(top.forward(&bevs, false).expect("forward")))
+    });
+    g.bench_function("top_folded", |b| {
+        b.iter(|| black_box(folded.forward(&bevs).expect("forward")))
+    });
     g.finish();
     let mut g = c.benchmark_group("train_step");
     g.sample_size(10);

@@ -2,9 +2,13 @@
 //! one [`Detector`] trait, with their training and their shipped weights.
 //!
 //! How it is cut (OpenPCDet's stage order):
-//! - [`voxel`]: points in the base frame → height-compressed BEV (SECOND v1.5 mean-point FLN).
+//! - [`voxel`]: points in the base frame → height-compressed BEV (SECOND v1.5 mean-point FLN:
+//!   in-voxel mean x, y, z and density per voxel).
 //! - [`net`]: 2D middle layers (one branch per LiDAR in Feature Fusion, max-fused, eq. 10), SECOND's
 //!   RPN and heads, focal / smooth-L1 / direction losses.
+//! - [`infer`]: the same network folded for inference (BatchNorm in the weights, HWC maps, one
+//!   gemm per band of rows, in parallel): what every loaded model runs; candle's forward is kept
+//!   for training.
 //! - [`anchors`]: anchors, target assignment, SECOND's box coding.
 //! - [`model`]: a trained network + its configuration → [`Detection`]s (decoding, NMS), the
 //!   [`Detector`] implementations of every [`Case`], Result Fusion (eq. 11) with temperature
@@ -15,6 +19,7 @@
 //!   the temperature calibration of Result Fusion.
 
 pub mod anchors;
+pub mod infer;
 pub mod model;
 pub mod net;
 pub mod train;

@@ -20,6 +20,7 @@ use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use super::anchors::{apply_direction, decode, AnchorConfig, Anchors};
+use super::infer::{FastNet, RawHeads};
 use super::net::{HeadOutput, NetConfig, Stage1Net};
 use super::voxel::{voxelize, Bev, GridConfig, PointsRef};
 use super::weights::{encode_safetensors, read_weights, Manifest};
@@ -104,6 +105,8 @@ pub struct Stage1Model {
     pub anchors: Anchors,
     /// The trainable variables (present when built for training).
     pub varmap: Option<VarMap>,
+    /// The folded inference network (present for loaded, frozen weights).
+    pub fast: Option<FastNet>,
 }
 
 impl std::fmt::Debug for Stage1Model {
@@ -132,6 +135,7 @@ impl Stage1Model {
             net,
             anchors,
             varmap: Some(varmap),
+            fast: None,
         })
     }
 
@@ -140,6 +144,7 @@ impl Stage1Model {
         config: ModelConfig,
         tensors: std::collections::HashMap<String, Tensor>,
     ) -> Result<Self, DetectError> {
+        let fast = FastNet::build(&config, &|name: &str| tensors.get(name).cloned())?;
         let vb = VarBuilder::from_tensors(tensors, DType::F32, &Device::Cpu);
         let net = Stage1Net::new(&config.grid, &config.net, &config.branch_names(), vb)?;
         let anchors = Anchors::new(&config.grid, &config.anchor);
@@ -148,6 +153,7 @@ impl Stage1Model {
             net,
             anchors,
             varmap: None,
+            fast: Some(fast),
         })
     }
 
@@ -218,7 +224,34 @@ impl Stage1Model {
             .collect()
     }
 
-    /// The network on BEV inputs (one per branch).
+    /// The head outputs on BEV inputs (one per branch): the folded network for loaded weights,
+    /// candle's forward for a model being trained.
+    pub fn heads(&self, bevs: &[Option<Bev>]) -> Result<RawHeads, DetectError> {
+        match &self.fast {
+            Some(f) if bevs.iter().any(|b| b.is_some()) => f.forward(bevs),
+            _ => Ok(RawHeads::from_candle(&self.forward(bevs, false)?)?),
+        }
+    }
+
+    /// The folded inference network of the current weights (of a model being trained too).
+    pub fn fast_net(&self) -> Result<FastNet, DetectError> {
+        if let Some(f) = &self.fast {
+            return Ok(f.clone());
+        }
+        let varmap = self
+            .varmap
+            .as_ref()
+            .ok_or_else(|| DetectError::BadParameter("model has no weights".into()))?;
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+        FastNet::build(&self.config, &|name: &str| {
+            data.get(name).map(|v| v.as_tensor().clone())
+        })
+    }
+
+    /// The candle network on BEV inputs (one per branch).
     pub fn forward(&self, bevs: &[Option<Bev>], train: bool) -> Result<HeadOutput, DetectError> {
         let inputs = bevs
             .iter()
@@ -235,15 +268,20 @@ impl Stage1Model {
 
     /// Decodes head outputs into boxes with their logits (before the score threshold is applied
     /// as a probability), best first, after NMS.
-    pub fn decode(&self, heads: &HeadOutput, temperature: f64) -> Result<Vec<(Detection, f32)>, DetectError> {
-        let cls: Vec<f32> = heads.cls.to_vec1()?;
+    pub fn decode(&self, heads: &RawHeads, temperature: f64) -> Result<Vec<(Detection, f32)>, DetectError> {
+        let cls = &heads.cls;
         let c = &self.config;
         let t = temperature.max(1e-3) as f32;
         let logit_min = {
             let p = c.score_threshold.clamp(1e-6, 1.0 - 1e-6);
             (p / (1.0 - p)).ln() * t
         };
-        let mut cand: Vec<usize> = (0..cls.len().min(self.anchors.len()))
+        let n = cls
+            .len()
+            .min(self.anchors.len())
+            .min(heads.reg.len() / 7)
+            .min(heads.dir.len() / 2);
+        let mut cand: Vec<usize> = (0..n)
             .filter(|&i| cls[i] >= logit_min && cls[i].is_finite())
             .collect();
         cand.sort_by(|&a, &b| cls[b].total_cmp(&cls[a]).then(a.cmp(&b)));
@@ -251,20 +289,13 @@ impl Stage1Model {
         if cand.is_empty() {
             return Ok(Vec::new());
         }
-        let idx = Tensor::from_vec(
-            cand.iter().map(|&i| i as u32).collect::<Vec<_>>(),
-            cand.len(),
-            &Device::Cpu,
-        )?;
-        let reg: Vec<f32> = heads.reg.index_select(&idx, 0)?.flatten_all()?.to_vec1()?;
-        let dir: Vec<f32> = heads.dir.index_select(&idx, 0)?.flatten_all()?.to_vec1()?;
         let mut boxes = Vec::with_capacity(cand.len());
         let mut scores = Vec::with_capacity(cand.len());
         let mut logits = Vec::with_capacity(cand.len());
-        for (k, &i) in cand.iter().enumerate() {
-            let r: [f32; 7] = std::array::from_fn(|j| reg[7 * k + j]);
+        for &i in &cand {
+            let r: [f32; 7] = std::array::from_fn(|j| heads.reg[7 * i + j]);
             let b = decode(&r, &self.anchors.boxes[i]);
-            let d = u32::from(dir[2 * k + 1] > dir[2 * k]);
+            let d = u32::from(heads.dir[2 * i + 1] > heads.dir[2 * i]);
             let yaw = apply_direction(b[6], d);
             let b3 = Box3d::new(
                 [b[0] as f64, b[1] as f64, b[2] as f64],
@@ -299,14 +330,14 @@ impl Stage1Model {
     /// Detections on an already fused cloud.
     pub fn detect_cloud(&self, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
         let bevs = self.voxelize(cloud);
-        let heads = self.forward(&bevs, false)?;
+        let heads = self.heads(&bevs)?;
         Ok(self.decode(&heads, 1.0)?.into_iter().map(|(d, _)| d).collect())
     }
 
     /// Detections with their raw logits (for temperature calibration).
     pub fn detect_cloud_logits(&self, cloud: &FusedCloud) -> Result<Vec<(Detection, f32)>, DetectError> {
         let bevs = self.voxelize(cloud);
-        let heads = self.forward(&bevs, false)?;
+        let heads = self.heads(&bevs)?;
         self.decode(&heads, 1.0)
     }
 }
@@ -376,8 +407,9 @@ impl ResultFusion {
 
     /// Detections on a fused cloud (generators whose LiDAR is absent contribute nothing).
     pub fn detect_cloud(&self, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
-        // The generators are independent: run them side by side (one network scales poorly past
-        // one core), then merge in generator order so the output does not depend on scheduling.
+        // The generators are independent: run them side by side (their layers' row bands share
+        // the rayon pool), then merge in generator order so the output does not depend on
+        // scheduling.
         let per_generator: Vec<Vec<Detection>> = self
             .generators
             .par_iter()
@@ -390,7 +422,7 @@ impl ResultFusion {
                 if !present {
                     return Ok(Vec::new());
                 }
-                let heads = model.forward(&model.voxelize(cloud), false)?;
+                let heads = model.heads(&model.voxelize(cloud))?;
                 Ok(model.decode(&heads, *t)?.into_iter().map(|(d, _)| d).collect())
             })
             .collect::<Result<_, _>>()?;

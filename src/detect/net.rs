@@ -12,6 +12,10 @@
 //! - Heads (1×1 convs): class logits (sigmoid), SECOND's 7 box residuals and 2 direction logits per
 //!   anchor. Sized for a 2-core CPU (see `shared/notes/candle-cpu.md`: the "tiny" configuration).
 //!
+//! Inference does not run this candle graph: [`super::infer::FastNet`] folds a trained network
+//! into plain gemm layers (about 3× faster on this CPU); this module is the training graph and the
+//! reference the folded network is tested against.
+//!
 //! Weights are named like the module tree (`middle.conv1.weight`, `rpn.block2.0.bn.running_mean`,
 //! `rpn.cls.bias`) so the safetensors file reads like the network. Initial values are drawn from a
 //! seeded ChaCha8 stream ([`Stage1Net::init_weights`]), because candle's CPU initialiser is not
@@ -208,6 +212,16 @@ impl Rpn {
     }
 }
 
+/// The name prefix of a branch's middle layers: `middle` in a single-branch network,
+/// `middle_<lidar>` in Feature Fusion.
+pub fn branch_prefix(branch_names: &[&str], name: &str) -> String {
+    if branch_names.len() == 1 {
+        "middle".to_string()
+    } else {
+        format!("middle_{name}")
+    }
+}
+
 /// The whole stage-1 network: one middle-layer branch per input (one for single-LiDAR and Input
 /// Fusion, three for Feature Fusion) and one RPN.
 #[derive(Debug, Clone)]
@@ -227,14 +241,9 @@ impl Stage1Net {
         let branches = branch_names
             .iter()
             .map(|name| {
-                let p = if branch_names.len() == 1 {
-                    "middle".to_string()
-                } else {
-                    format!("middle_{name}")
-                };
                 Ok((
                     name.to_string(),
-                    MiddleLayers::new(grid.channels(), cfg, vb.pp(p))?,
+                    MiddleLayers::new(grid.channels(), cfg, vb.pp(branch_prefix(branch_names, name)))?,
                 ))
             })
             .collect::<candle_core::Result<Vec<_>>>()?;

@@ -3,12 +3,15 @@
 //!
 //! How it works: the range x, y ∈ [−51.2, 51.2) m (the paper's hard difficulty is < 50 m, §V-A-2)
 //! and z ∈ [−3, 1) m (LIDAR_TOP sits ~1.8 m above the road) is cut into 0.4 m × 0.4 m columns of
-//! `nz` 0.5 m voxels. As in SECOND v1.5 the voxel feature is the mean of its points; here the mean
-//! height inside the voxel (0 at its bottom, 1 at its top) together with the point density
-//! ln(1 + n), and the mean intensity of the whole column. The voxels of a column are stacked as
-//! channels, giving a dense `[2·nz + 1, ny, nx]` map that 2D convolutions consume — the deviation
-//! from SECOND's sparse 3D middle layers (candle has no sparse convolution). One pass over the
-//! points (a few hundred thousand at most) takes about a millisecond, so it runs on one thread.
+//! `nz` 0.5 m voxels. As in SECOND v1.5 the voxel feature is the mean of its points: the mean
+//! position inside the voxel (x, y and z, each 0 at the voxel's low side and 1 at its high side)
+//! together with the point density ln(1 + n), and the mean intensity of the whole column. The
+//! voxels of a column are stacked as channels, giving a dense `[4·nz + 1, ny, nx]` map that 2D
+//! convolutions consume — the deviation from SECOND's sparse 3D middle layers (candle has no sparse
+//! convolution). Channel order: density (nz), mean z (nz), column intensity (1), mean x (nz),
+//! mean y (nz). Models trained before the in-voxel x/y means existed (`xy_means: false` in their
+//! configuration) get the first `2·nz + 1` channels only. One pass over the points (a few hundred
+//! thousand at most) takes about a millisecond, so it runs on one thread.
 
 use serde::{Deserialize, Serialize};
 
@@ -25,6 +28,10 @@ pub struct GridConfig {
     pub z_max: f32,
     /// Voxels per column.
     pub nz: usize,
+    /// Whether the voxel feature holds the in-voxel mean x and y (absent, so false, in the
+    /// configuration of models trained before they existed).
+    #[serde(default)]
+    pub xy_means: bool,
 }
 
 impl Default for GridConfig {
@@ -36,14 +43,20 @@ impl Default for GridConfig {
             z_min: -3.0,
             z_max: 1.0,
             nz: 8,
+            xy_means: true,
         }
     }
 }
 
 impl GridConfig {
-    /// Channels of the BEV tensor: density and mean height per voxel, and the column intensity.
+    /// Channels of the BEV tensor: density and mean height per voxel, the column intensity, and
+    /// with `xy_means` the mean x and y per voxel.
     pub fn channels(&self) -> usize {
-        2 * self.nz + 1
+        if self.xy_means {
+            4 * self.nz + 1
+        } else {
+            2 * self.nz + 1
+        }
     }
 
     /// The upper x and y bound (m).
@@ -106,6 +119,9 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
     let dz = (grid.z_max - grid.z_min) / nz as f32;
     let mut count = vec![0u32; nz * cols];
     let mut zsum = vec![0f32; nz * cols];
+    let xy = grid.xy_means;
+    let mut xsum = vec![0f32; if xy { nz * cols } else { 0 }];
+    let mut ysum = vec![0f32; if xy { nz * cols } else { 0 }];
     let mut col_count = vec![0u32; cols];
     let mut isum = vec![0f32; cols];
     let mut used = 0;
@@ -122,13 +138,21 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
         let v = iz * cols + c;
         count[v] += 1;
         zsum[v] += fz - iz as f32;
+        if xy {
+            let fx = (pts.x[i] - grid.xy_min) / grid.cell;
+            let fy = (pts.y[i] - grid.xy_min) / grid.cell;
+            xsum[v] += fx - fx.floor();
+            ysum[v] += fy - fy.floor();
+        }
         col_count[c] += 1;
         isum[c] += pts.intensity[i];
         used += 1;
     }
     let mut data = vec![0f32; grid.channels() * cols];
     let (density, rest) = data.split_at_mut(nz * cols);
-    let (height, intensity) = rest.split_at_mut(nz * cols);
+    let (height, rest) = rest.split_at_mut(nz * cols);
+    let (intensity, rest) = rest.split_at_mut(cols);
+    let (xmean, ymean) = rest.split_at_mut(if xy { nz * cols } else { 0 });
     let mut occupied = 0;
     for v in 0..nz * cols {
         let n = count[v];
@@ -136,6 +160,10 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
             occupied += 1;
             density[v] = (n as f32).ln_1p();
             height[v] = zsum[v] / n as f32;
+            if xy {
+                xmean[v] = xsum[v] / n as f32;
+                ymean[v] = ysum[v] / n as f32;
+            }
         }
     }
     for c in 0..cols {
@@ -184,6 +212,39 @@ mod tests {
         assert!((bev.data[g.nz * cols + c] - 0.4).abs() < 1e-5);
         // Column intensity: (255 + 0 + 255) / 3 / 255.
         assert!((bev.data[2 * g.nz * cols + c] - 2.0 / 3.0).abs() < 1e-6);
-        assert_eq!(bev.data.iter().filter(|v| **v != 0.0).count(), 5);
+        // In-voxel mean x and y (fractions of the 0.4 m cell): x at 0.25 and 0.5 of the cell,
+        // y at 0.25 and 0.75; the voxel above holds one point at (0.25, 0.25).
+        let (xm, ym) = ((2 * g.nz + 1) * cols, (3 * g.nz + 1) * cols);
+        assert!((bev.data[xm + c] - 0.375).abs() < 1e-4, "{}", bev.data[xm + c]);
+        assert!((bev.data[ym + c] - 0.5).abs() < 1e-4, "{}", bev.data[ym + c]);
+        assert!((bev.data[xm + cols + c] - 0.25).abs() < 1e-4);
+        assert!((bev.data[ym + cols + c] - 0.25).abs() < 1e-4);
+        assert_eq!(bev.data.iter().filter(|v| **v != 0.0).count(), 9);
+        assert_eq!(bev.channels, 4 * g.nz + 1);
+    }
+
+    #[test]
+    fn models_without_xy_means_keep_their_channels() {
+        let g = GridConfig {
+            xy_means: false,
+            ..GridConfig::default()
+        };
+        let p = [0.1f32];
+        let bev = voxelize(
+            &g,
+            PointsRef {
+                x: &p,
+                y: &p,
+                z: &[-2.9],
+                intensity: &[255.0],
+            },
+        );
+        assert_eq!(bev.channels, 2 * g.nz + 1);
+        assert_eq!(bev.data.len(), (2 * g.nz + 1) * g.n * g.n);
+        assert_eq!(bev.data.iter().filter(|v| **v != 0.0).count(), 3);
+        // A configuration written before the field existed reads as `xy_means: false`.
+        let old = r#"{"xy_min":-51.2,"cell":0.4,"n":256,"z_min":-3.0,"z_max":1.0,"nz":8}"#;
+        let parsed: GridConfig = serde_json::from_str(old).unwrap();
+        assert_eq!(parsed, g);
     }
 }
