@@ -94,6 +94,13 @@ struct Table1Args {
     /// Record each trained model's figures as `test_ap` in the models' manifest.json.
     #[arg(long)]
     update_manifest: bool,
+    /// Also print each case's car recall per BEV range band: the bands' upper edges in m,
+    /// increasing (e.g. 10,20,30 for 0–10, 10–20, 20–30 m).
+    #[arg(long, value_delimiter = ',')]
+    recall_bands: Vec<f64>,
+    /// 3D IoU at which a car counts as found in the recall table.
+    #[arg(long, default_value_t = 0.7, value_parser = parse_unit)]
+    recall_iou: f64,
 }
 
 #[derive(clap::Args)]
@@ -680,9 +687,18 @@ fn run_case(
 
 fn table1_cmd(args: Table1Args) -> Result<()> {
     use mlod::detect::Case;
+    let bands = &args.recall_bands;
+    if bands.iter().any(|b| !b.is_finite() || *b <= 0.0) || bands.windows(2).any(|w| w[1] <= w[0]) {
+        bail!("--recall-bands must be positive and increasing, got {bands:?}");
+    }
     let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
     let opts = mlod::eval::EvalOptions {
         samples: args.samples,
+        per_box: bands.last().map(|&max_range| mlod::eval::MatchRule {
+            iou_threshold: args.recall_iou,
+            kind: mlod::geometry::IouKind::ThreeD,
+            max_range,
+        }),
         ..Default::default()
     };
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
@@ -695,6 +711,7 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
     };
     let mut reports = serde_json::Map::new();
     let mut rows = Vec::new();
+    let mut recalls = Vec::new();
     for case in cases {
         let start = std::time::Instant::now();
         let report = run_case(&dataset, &tokens, &models, case, &params, &opts)?;
@@ -715,6 +732,12 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
             report.samples,
             start.elapsed().as_secs_f64()
         );
+        let recall = report
+            .per_box
+            .as_deref()
+            .map(|pb| mlod::eval::recall_by_range(pb, "car", bands))
+            .unwrap_or_default();
+        recalls.push((case, recall));
         rows.push((case, figures));
         reports.insert(case.as_str().to_string(), serde_json::to_value(&report)?);
     }
@@ -733,6 +756,32 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
             .map(|(_, v)| v.map_or_else(|| "–".to_string(), |x| format!("{x:.2}")))
             .collect();
         println!("| {} | {} |", case.paper_name(), cells.join(" | "));
+    }
+    if !bands.is_empty() {
+        println!();
+        println!(
+            "Cars found at 3D IoU ≥ {} (any score), by BEV range",
+            args.recall_iou
+        );
+        println!();
+        let heads: Vec<String> = std::iter::once(0.0)
+            .chain(bands.iter().copied())
+            .collect::<Vec<f64>>()
+            .windows(2)
+            .map(|w| format!("{}–{} m", w[0], w[1]))
+            .collect();
+        println!("| Method | {} |", heads.join(" | "));
+        println!("|---|{}", "---:|".repeat(heads.len()));
+        for (case, recall) in &recalls {
+            let cells: Vec<String> = recall
+                .iter()
+                .map(|&(n, found)| match n {
+                    0 => "–".to_string(),
+                    n => format!("{:.1} % ({found}/{n})", 100.0 * found as f64 / n as f64),
+                })
+                .collect();
+            println!("| {} | {} |", case.paper_name(), cells.join(" | "));
+        }
     }
     if let Some(out) = &args.out {
         let doc = serde_json::json!({

@@ -386,3 +386,59 @@ fn table1_agrees_with_eval_case_and_detect() {
     assert!(!bad.status.success());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn table1_recall_bands_count_the_cars_eval_per_box_matches() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let data = format!("{root}/sample_data");
+    let out = mlod(&[
+        "table1",
+        "--dataset",
+        &data,
+        "--cases",
+        "top",
+        "--samples",
+        "2",
+        "--recall-bands",
+        "20,50",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("| Method | 0–20 m | 20–50 m |"), "{table}");
+    // The same counts from eval's per-box outcomes at the same IoU and range.
+    let eval = json(&[
+        "eval",
+        "--dataset",
+        &data,
+        "--case",
+        "top",
+        "--samples",
+        "2",
+        "--per-box",
+        "--match-iou",
+        "0.7",
+        "--match-range",
+        "50",
+        "--json",
+    ]);
+    let mut counts = [(0, 0); 2];
+    for s in eval["per_box"].as_array().expect("per_box") {
+        for g in s["gts"].as_array().expect("gts") {
+            let r = g["range"].as_f64().expect("range");
+            if g["category"] != "car" || g["outcome"] == "ignored" || r >= 50.0 {
+                continue;
+            }
+            let b = usize::from(r >= 20.0);
+            counts[b].0 += 1;
+            counts[b].1 += usize::from(g["outcome"] == "matched");
+        }
+    }
+    assert!(counts[0].0 > 0 && counts[1].0 > 0, "{counts:?}");
+    for (n, found) in counts {
+        let cell = format!("{:.1} % ({found}/{n})", 100.0 * found as f64 / n as f64);
+        assert!(table.contains(&cell), "{cell} not in {table}");
+    }
+    let bad = mlod(&["table1", "--dataset", &data, "--recall-bands", "30,20"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--recall-bands"));
+}

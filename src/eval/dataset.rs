@@ -494,9 +494,65 @@ fn finish(
     }
 }
 
+/// Recall of one category per BEV range band, from per-box outcomes: `bands` are the upper
+/// edges (m, increasing; the first band starts at 0). Per band: (ground truth boxes not ignored,
+/// of them matched). Boxes at or beyond the last edge are not counted.
+pub fn recall_by_range(per_box: &[SampleReport], category: &str, bands: &[f64]) -> Vec<(usize, usize)> {
+    let mut out = vec![(0usize, 0usize); bands.len()];
+    for g in per_box
+        .iter()
+        .flat_map(|s| &s.gts)
+        .filter(|g| g.category == category)
+    {
+        let Some(b) = bands.iter().position(|&edge| g.range < edge) else {
+            continue;
+        };
+        match g.outcome {
+            GtOutcome::Matched { .. } => {
+                out[b].0 += 1;
+                out[b].1 += 1;
+            }
+            GtOutcome::Missed => out[b].0 += 1,
+            GtOutcome::Ignored => {}
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn recall_by_range_counts_matched_and_missed_per_band() {
+        let gt = |range: f64, outcome: GtOutcome, category: &str| GtReport {
+            annotation_token: String::new(),
+            category: category.into(),
+            range,
+            outcome,
+        };
+        let hit = GtOutcome::Matched { pred: 0, iou: 0.8 };
+        let per_box = vec![SampleReport {
+            sample_token: "s".into(),
+            preds: Vec::new(),
+            gts: vec![
+                gt(5.0, hit, "car"),
+                gt(9.9, GtOutcome::Missed, "car"),
+                gt(12.0, hit, "car"),
+                gt(15.0, GtOutcome::Ignored, "car"),
+                gt(3.0, hit, "pedestrian"),
+                gt(25.0, GtOutcome::Missed, "car"),
+            ],
+        }];
+        assert_eq!(
+            recall_by_range(&per_box, "car", &[10.0, 20.0]),
+            vec![(2, 1), (1, 1)]
+        );
+        assert_eq!(
+            recall_by_range(&per_box, "car", &[]),
+            Vec::<(usize, usize)>::new()
+        );
+    }
     use serde_json::json;
 
     #[test]

@@ -11,8 +11,8 @@ pub mod matching;
 
 pub use ap::Interpolation;
 pub use dataset::{
-    evaluate, evaluate_detections, parse_predictions, read_predictions, sample_tokens, EvalError,
-    EvalOptions, EvalReport, PredictionSet,
+    evaluate, evaluate_detections, parse_predictions, read_predictions, recall_by_range, sample_tokens,
+    EvalError, EvalOptions, EvalReport, PredictionSet,
 };
 pub use kitti::{kitti_ap, KittiConfig, SampleBoxes};
 pub use lyft::{lyft_iou, lyft_map, Footprints, LyftBox, LyftMap};
