@@ -67,7 +67,7 @@ fn bench(c: &mut Criterion) {
     let mut opt = AdamW::new(&model, 0.01).expect("optimiser");
     g.bench_function("input", |b| {
         b.iter(|| {
-            let s = prepare_sample(&model, &frame, None).expect("sample");
+            let s = prepare_sample(&model, &frame, None, &[]).expect("sample");
             let l = compute_loss(&model, &s).expect("loss");
             let grads = l.total.backward().expect("backward");
             opt.update(&grads, 1e-4, 10.0).expect("update")

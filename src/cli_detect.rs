@@ -52,6 +52,11 @@ pub struct Stage1Args {
     /// Feature Fusion branch).
     #[arg(long)]
     init: Option<PathBuf>,
+    /// Ground-truth sampling (SECOND's dataset sampling, paper §V-A-5): top every training frame
+    /// up to N boxes of the learned category with objects from the training split (0: off;
+    /// SECOND uses 15 for cars).
+    #[arg(long, default_value_t = 0)]
+    gt_sample: usize,
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
@@ -144,6 +149,7 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             cfg.max_samples = a.max_samples;
             cfg.checkpoint_every_s = a.checkpoint_every;
             cfg.init = a.init;
+            cfg.gt_sample = a.gt_sample;
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }

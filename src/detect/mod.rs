@@ -15,10 +15,12 @@
 //!   scaling.
 //! - [`weights`]: safetensors files with their configuration, sha256-checked through
 //!   `assets/models/manifest.json`.
+//! - [`gt_sampling`]: SECOND's ground-truth (dataset) sampling for training.
 //! - [`train`]: the training loop (§V-A-5 augmentation, AdamW, resumable checkpoints, loss CSV) and
 //!   the temperature calibration of Result Fusion.
 
 pub mod anchors;
+pub mod gt_sampling;
 pub mod infer;
 pub mod model;
 pub mod net;

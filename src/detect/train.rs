@@ -6,13 +6,15 @@
 //!   validation split (temperature fitting), the rest is trained on. Test scenes live in a
 //!   different dataset generated with another seed, never seen here.
 //! - One step = one sample (batch 1, fastest on a CPU): fuse with the nominal extrinsics, with
+//!   `gt_sample` > 0 paste ground-truth-sampled objects ([`super::gt_sampling`]), with
 //!   probability 0.3 augment points and boxes together (flip y → −y with probability 0.5, rotate
 //!   by U(−5°, 5°) about z, translate by U(±0.5, ±0.5, ±0.3) m), voxelise each branch, assign
 //!   targets, then loss = focal(cls) + 2·smooth-L1(box, sin-difference angle) + 0.2·CE(direction),
 //!   each normalised by the number of positives, and one AdamW update (linear warm-up, cosine
 //!   decay, gradient-norm clip 10).
 //! - Determinism: the sample order of epoch e is a shuffle from ChaCha8(seed, stream e); step s
-//!   draws its augmentation from ChaCha8(seed, stream 2³² + s); weights start from ChaCha8(seed).
+//!   draws its augmentation from ChaCha8(seed, stream 2³² + s) and its sampled objects from
+//!   ChaCha8(seed, stream 2³³ + s); weights start from ChaCha8(seed).
 //!   Nothing else is random, so a run resumed from a checkpoint continues exactly as if it had not
 //!   stopped (given the same thread count).
 //! - Checkpoints (weights, AdamW moments, step, elapsed time, the loss-curve rows) are written
@@ -29,6 +31,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::anchors::{assign, RawBox, Targets};
+use super::gt_sampling::{paste, raw_box, GtDatabase, GtObject, Inside};
 use super::model::{branch_points, ModelConfig, Stage1Model};
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 use super::voxel::{voxelize, Bev, PointsRef};
@@ -100,54 +103,40 @@ pub struct PreparedSample {
     pub num_dont_care: usize,
 }
 
-fn raw(b: &Box3d) -> RawBox {
-    [
-        b.center[0] as f32,
-        b.center[1] as f32,
-        b.center[2] as f32,
-        b.size_lwh[0] as f32,
-        b.size_lwh[1] as f32,
-        b.size_lwh[2] as f32,
-        b.yaw as f32,
-    ]
-}
-
 /// Points of `pts` inside an upright box (counted on the slices the case's branches see).
 fn points_in(b: &RawBox, parts: &[Option<PointsRef<'_>>]) -> usize {
-    let (s, c) = b[6].sin_cos();
-    let r = 0.5 * (b[3] * b[3] + b[4] * b[4]).sqrt();
-    let mut n = 0;
-    for p in parts.iter().flatten() {
-        for i in 0..p.len() {
-            let dx = p.x[i] - b[0];
-            let dy = p.y[i] - b[1];
-            if dx.abs() > r || dy.abs() > r {
-                continue;
-            }
-            let lx = c * dx + s * dy;
-            let ly = -s * dx + c * dy;
-            if lx.abs() <= 0.5 * b[3] && ly.abs() <= 0.5 * b[4] && (p.z[i] - b[2]).abs() <= 0.5 * b[5] {
-                n += 1;
-            }
-        }
-    }
-    n
+    let inside = Inside::new(b);
+    parts
+        .iter()
+        .flatten()
+        .map(|p| {
+            (0..p.len())
+                .filter(|&i| inside.contains(p.x[i], p.y[i], p.z[i]))
+                .count()
+        })
+        .sum()
 }
 
-/// Fuses (nominal extrinsics), augments, voxelises and assigns one frame.
+/// Fuses (nominal extrinsics), pastes the ground-truth-sampled `objects` (see [`gt_sampling`]),
+/// augments, voxelises and assigns one frame.
 pub fn prepare_sample(
     model: &Stage1Model,
     frame: &Frame,
     aug: Option<&Augmentation>,
+    objects: &[&GtObject],
 ) -> Result<PreparedSample, DetectError> {
     let cfg = &model.config;
     let mut cloud = fuse(frame, &FuseParams::default())?;
+    if !objects.is_empty() {
+        cloud = paste(&cloud, objects);
+    }
     let mut boxes: Vec<RawBox> = Vec::new();
     for b in frame.boxes.iter().filter(|b| b.category == cfg.anchor.category) {
         if b.box3d.is_valid() {
-            boxes.push(raw(&b.box3d));
+            boxes.push(raw_box(&b.box3d));
         }
     }
+    boxes.extend(objects.iter().map(|o| o.raw));
     if let Some(a) = aug {
         a.apply(&mut cloud, &mut boxes);
     }
@@ -347,6 +336,9 @@ pub struct TrainConfig {
     /// Start from these weights instead of random ones (a model of the same network shape; a
     /// single-branch model also initialises every Feature Fusion branch). Ignored on resume.
     pub init: Option<PathBuf>,
+    /// Ground-truth sampling (SECOND's dataset sampling): top every frame up to this many boxes of
+    /// the learned category from a database cut from the training split (0: off).
+    pub gt_sample: usize,
     /// The command line, recorded in the manifest.
     pub command: String,
 }
@@ -370,6 +362,7 @@ impl TrainConfig {
             resume: false,
             max_samples: 0,
             init: None,
+            gt_sample: 0,
             command: String::new(),
         }
     }
@@ -440,6 +433,23 @@ pub fn split(dataset: &Dataset) -> (Vec<String>, Vec<String>) {
         }
     }
     (train, val)
+}
+
+/// The database objects pasted into the frame of a step (from ChaCha8(seed, stream 2³³ + step)).
+fn sample_objects(
+    database: &GtDatabase,
+    frame: &Frame,
+    category: &str,
+    cfg: &TrainConfig,
+    step: u64,
+) -> Vec<usize> {
+    if cfg.gt_sample == 0 || database.is_empty() {
+        return Vec::new();
+    }
+    let occupied: Vec<RawBox> = frame.boxes.iter().map(|b| raw_box(&b.box3d)).collect();
+    let existing = frame.boxes.iter().filter(|b| b.category == category).count();
+    let mut rng = stream_rng(cfg.seed, (1u64 << 33) + step);
+    database.sample(&mut rng, existing, &occupied, cfg.gt_sample)
 }
 
 /// The outcome of a training run.
@@ -645,6 +655,12 @@ pub fn train_stage1(
         )));
     }
     let model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
+    let database = if cfg.gt_sample > 0 {
+        let a = &model.config.anchor;
+        GtDatabase::build(&dataset, &train, cfg.case, &a.category, a.min_points)?
+    } else {
+        GtDatabase::default()
+    };
     let mut opt = AdamW::new(&model, cfg.weight_decay)?;
     let mut ck = if cfg.resume && cfg.checkpoint.exists() {
         load_checkpoint(cfg, &model, &mut opt)?
@@ -677,7 +693,9 @@ pub fn train_stage1(
         let aug = Augmentation::draw(&mut rng);
         let t0 = Instant::now();
         let frame = dataset.frame(token)?;
-        let sample = prepare_sample(&model, &frame, aug.as_ref())?;
+        let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
+        let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
+        let sample = prepare_sample(&model, &frame, aug.as_ref(), &objects)?;
         let t1 = Instant::now();
         let losses = compute_loss(&model, &sample)?;
         let t2 = Instant::now();
@@ -903,7 +921,7 @@ mod tests {
             intensity: vec![0.0],
             ..Default::default()
         };
-        let mut boxes = [raw(&b)];
+        let mut boxes = [raw_box(&b)];
         a.apply(&mut cloud, &mut boxes);
         let nb = Box3d::new(
             [boxes[0][0] as f64, boxes[0][1] as f64, boxes[0][2] as f64],
@@ -924,12 +942,30 @@ mod training_tests {
     use super::*;
 
     #[test]
+    fn pasted_objects_become_training_targets() {
+        use crate::detect::gt_sampling::GtDatabase;
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let tokens: Vec<String> = ds.samples().into_iter().map(|s| s.sample_token).collect();
+        let frame = ds.frame(&tokens[0]).unwrap();
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).unwrap();
+        let db = GtDatabase::build(&ds, &tokens[1..], Case::Top, "car", 5).unwrap();
+        let occupied: Vec<RawBox> = frame.boxes.iter().map(|b| raw_box(&b.box3d)).collect();
+        let picked = db.sample(&mut stream_rng(5, 0), 0, &occupied, 6);
+        assert!(!picked.is_empty());
+        let objects: Vec<&GtObject> = picked.iter().map(|&i| &db.objects[i]).collect();
+        let plain = prepare_sample(&model, &frame, None, &[]).unwrap();
+        let pasted = prepare_sample(&model, &frame, None, &objects).unwrap();
+        assert_eq!(pasted.num_gt, plain.num_gt + objects.len());
+        assert!(pasted.targets.positives.len() > plain.targets.positives.len());
+    }
+
+    #[test]
     fn a_few_training_steps_lower_the_loss_on_a_sample_frame() {
         let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
         let token = ds.first_sample_token().unwrap().to_string();
         let frame = ds.frame(&token).unwrap();
         let model = Stage1Model::new_trainable(ModelConfig::new(Case::Input), 11).unwrap();
-        let sample = prepare_sample(&model, &frame, None).unwrap();
+        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
         assert!(sample.num_gt > 0 && !sample.targets.positives.is_empty());
         let mut opt = AdamW::new(&model, 0.01).unwrap();
         let mut losses = Vec::new();
