@@ -73,3 +73,27 @@ fn warm_started_models_name_shipped_starting_weights() {
         assert!(from.command.contains("train stage1") && from.steps > 0);
     }
 }
+
+#[test]
+fn v3_candidates_load_and_record_where_they_started() {
+    // assets/models/v3: the ground-truth-sampling fine-tunes finished so far (scripts/train-v3.sh).
+    let dir = default_models_dir().join("v3");
+    let Ok(v3) = Manifest::load(&dir) else {
+        return;
+    };
+    assert!(!v3.models.is_empty());
+    for (case, entry) in &v3.models {
+        // Loading checks the file against the manifest's sha256.
+        load_detector(&dir, *case).unwrap_or_else(|e| panic!("{case}: {e}"));
+        assert!(
+            entry.command.contains("--gt-sample 40"),
+            "{case}: {}",
+            entry.command
+        );
+        assert!(entry.test_ap.contains_key("moderate_ap3d_0.7"), "{case}");
+        let init = entry.init.as_ref().expect("a warm start");
+        let from = init.entry.as_ref().expect("the starting model's entry");
+        assert_eq!(from.sha256, init.sha256, "{case}");
+        assert!(from.command.contains("train stage1") && from.steps > 0, "{case}");
+    }
+}
