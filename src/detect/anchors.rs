@@ -18,9 +18,32 @@ use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 use serde::{Deserialize, Serialize};
 
 use super::voxel::GridConfig;
+use crate::geometry::Box3d;
 
 /// A box as the network sees it: x, y, z (centre), l, w, h, yaw.
 pub type RawBox = [f32; 7];
+
+/// A [`Box3d`] as the network sees it.
+pub fn raw_box(b: &Box3d) -> RawBox {
+    [
+        b.center[0] as f32,
+        b.center[1] as f32,
+        b.center[2] as f32,
+        b.size_lwh[0] as f32,
+        b.size_lwh[1] as f32,
+        b.size_lwh[2] as f32,
+        b.yaw as f32,
+    ]
+}
+
+/// A raw box as a [`Box3d`].
+pub fn box3d_of(b: &RawBox) -> Box3d {
+    Box3d::new(
+        [b[0] as f64, b[1] as f64, b[2] as f64],
+        [b[3] as f64, b[4] as f64, b[5] as f64],
+        b[6] as f64,
+    )
+}
 
 /// The direction classes split headings at this angle (π/4 keeps the common headings 0, ±π/2, π
 /// away from the class boundary).

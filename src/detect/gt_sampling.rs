@@ -18,10 +18,9 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use super::anchors::RawBox;
+use super::anchors::{box3d_of, raw_box, RawBox};
 use super::{Case, DetectError};
 use crate::geometry::iou::Footprint;
-use crate::geometry::Box3d;
 use crate::lyft::{Dataset, Frame, LidarChannel};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
@@ -94,24 +93,8 @@ fn seen_by(case: Case) -> [bool; 3] {
     }
 }
 
-pub fn raw_box(b: &Box3d) -> RawBox {
-    [
-        b.center[0] as f32,
-        b.center[1] as f32,
-        b.center[2] as f32,
-        b.size_lwh[0] as f32,
-        b.size_lwh[1] as f32,
-        b.size_lwh[2] as f32,
-        b.yaw as f32,
-    ]
-}
-
 fn footprint(b: &RawBox) -> Footprint {
-    Footprint::of_box(&Box3d::new(
-        [b[0] as f64, b[1] as f64, b[2] as f64],
-        [b[3] as f64, b[4] as f64, b[5] as f64],
-        b[6] as f64,
-    ))
+    Footprint::of_box(&box3d_of(b))
 }
 
 /// The objects of one fused frame: boxes of `category` with ≥ `min_points` points on the LiDARs

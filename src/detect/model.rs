@@ -19,7 +19,7 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
-use super::anchors::{apply_direction, decode, AnchorConfig, Anchors};
+use super::anchors::{apply_direction, box3d_of, decode, AnchorConfig, Anchors};
 use super::infer::{FastNet, RawHeads};
 use super::net::{HeadOutput, NetConfig, Stage1Net};
 use super::voxel::{voxelize, Bev, GridConfig, PointsRef};
@@ -294,14 +294,10 @@ impl Stage1Model {
         let mut logits = Vec::with_capacity(cand.len());
         for &i in &cand {
             let r: [f32; 7] = std::array::from_fn(|j| heads.reg[7 * i + j]);
-            let b = decode(&r, &self.anchors.boxes[i]);
+            let mut b = decode(&r, &self.anchors.boxes[i]);
             let d = u32::from(heads.dir[2 * i + 1] > heads.dir[2 * i]);
-            let yaw = apply_direction(b[6], d);
-            let b3 = Box3d::new(
-                [b[0] as f64, b[1] as f64, b[2] as f64],
-                [b[3] as f64, b[4] as f64, b[5] as f64],
-                yaw as f64,
-            );
+            b[6] = apply_direction(b[6], d);
+            let b3 = box3d_of(&b);
             if !b3.is_valid() {
                 continue;
             }

@@ -30,8 +30,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::anchors::{assign, RawBox, Targets};
-use super::gt_sampling::{paste, raw_box, GtDatabase, GtObject, Inside};
+use super::anchors::{assign, raw_box, RawBox, Targets};
+use super::gt_sampling::{paste, GtDatabase, GtObject, Inside};
 use super::model::{branch_points, ModelConfig, Stage1Model};
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 use super::voxel::{voxelize, Bev, PointsRef};
