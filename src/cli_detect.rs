@@ -57,6 +57,10 @@ pub struct Stage1Args {
     /// SECOND uses 15 for cars).
     #[arg(long, default_value_t = 0)]
     gt_sample: usize,
+    /// SECOND's code weight of the box-size residuals (log l, log w, log h) in the regression loss
+    /// (1: all seven residuals weigh the same, as in SECOND's default).
+    #[arg(long, default_value_t = 1.0)]
+    size_weight: f32,
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
@@ -150,6 +154,10 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             cfg.checkpoint_every_s = a.checkpoint_every;
             cfg.init = a.init;
             cfg.gt_sample = a.gt_sample;
+            if !(a.size_weight.is_finite() && a.size_weight > 0.0 && a.size_weight <= 100.0) {
+                anyhow::bail!("--size-weight must be in (0, 100], got {}", a.size_weight);
+            }
+            cfg.size_weight = a.size_weight;
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }

@@ -124,7 +124,8 @@ struct EvalArgs {
     /// KITTI recall points: r40 (default) or r11.
     #[arg(long, default_value = "r40", value_parser = ["r40", "r11"])]
     interpolation: String,
-    /// Add every box's outcome (TP with its GT and IoU, FP, miss) to the JSON.
+    /// Add every box's outcome (TP with its GT, IoU and residuals, FP, miss) to the JSON, and a
+    /// localisation summary of the matches (mean |residual| and size correlation per class).
     #[arg(long)]
     per_box: bool,
     /// IoU threshold of the per-box outcomes (3D IoU, ≥).
@@ -906,5 +907,34 @@ fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()> {
         "  mean                {:.4}   {:.4}",
         report.lyft.map, report.lyft_exact.map
     );
+    if let Some(loc) = &report.localization {
+        println!(
+            "\nLocalisation of the matches (3D IoU >= {}, range < {} m): mean |prediction - truth|",
+            args.match_iou, args.match_range
+        );
+        println!(
+            "{:<20} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}   size corr. l / w / h",
+            "class", "matched", "along", "lateral", "z", "l", "w", "h", "yaw (°)"
+        );
+        let corr = |c: Option<f64>| c.map_or("-".to_string(), |c| format!("{c:.2}"));
+        for l in loc {
+            let e = &l.mean_abs;
+            println!(
+                "{:<20} {:>7} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.2}   {} / {} / {}",
+                l.category,
+                l.matched,
+                e.along,
+                e.lateral,
+                e.dz,
+                e.dl,
+                e.dw,
+                e.dh,
+                e.dyaw.to_degrees(),
+                corr(l.size_corr[0]),
+                corr(l.size_corr[1]),
+                corr(l.size_corr[2])
+            );
+        }
+    }
     Ok(())
 }

@@ -308,6 +308,14 @@ fn eval_prints_the_issue_json_shape_and_rejects_bad_files() {
     }
     assert_eq!(v["predictions"]["rejected"], 6);
     assert_eq!(v["per_box"].as_array().map(Vec::len), Some(10));
+    // The localisation summary: per class, mean |residual| and the size correlations.
+    let loc = v["localization"].as_array().expect("localization with --per-box");
+    let car = loc.iter().find(|l| l["category"] == "car").expect("car");
+    assert!(car["matched"].as_u64().is_some_and(|n| n > 0));
+    for k in ["along", "lateral", "dz", "dl", "dw", "dh", "dyaw"] {
+        assert!(car["mean_abs"][k].as_f64().is_some_and(|x| x >= 0.0), "{k}");
+    }
+    assert_eq!(car["size_corr"].as_array().map(Vec::len), Some(3));
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out_file).expect("--out written")).expect("json");
     assert_eq!(written, v);

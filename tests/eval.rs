@@ -132,5 +132,30 @@ fn ground_truth_as_predictions_is_perfect() {
             );
         }
         assert!(s.gts.iter().all(|g| !matches!(g.outcome, GtOutcome::Missed)));
+        // Every match carries its residuals, all zero for predictions equal to the truth.
+        for g in &s.gts {
+            match (g.outcome, g.error) {
+                (GtOutcome::Matched { .. }, Some(e)) => {
+                    let worst = [e.along, e.lateral, e.dz, e.dl, e.dw, e.dh, e.dyaw]
+                        .iter()
+                        .fold(0.0f64, |m, v| m.max(v.abs()));
+                    assert!(worst < 1e-9, "{e:?}");
+                }
+                (GtOutcome::Matched { .. }, None) => panic!("a match without residuals: {g:?}"),
+                (_, e) => assert!(e.is_none(), "{g:?}"),
+            }
+        }
+    }
+    let loc = report.localization.expect("localisation with per-box");
+    let car = loc
+        .iter()
+        .find(|l| l.category == "car")
+        .expect("cars are matched");
+    assert!(car.matched > 10, "{}", car.matched);
+    assert!(car.mean_abs.along < 1e-9 && car.mean_abs.dl < 1e-9 && car.bias.dyaw.abs() < 1e-9);
+    for k in 0..3 {
+        let c = car.size_corr[k].expect("sample_data's cars vary in size");
+        assert!((c - 1.0).abs() < 1e-9, "size {k}: {c}");
+        assert!((car.size_std_true[k] - car.size_std_pred[k]).abs() < 1e-9);
     }
 }

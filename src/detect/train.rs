@@ -10,7 +10,8 @@
 //!   probability 0.3 augment points and boxes together (flip y → −y with probability 0.5, rotate
 //!   by U(−5°, 5°) about z, translate by U(±0.5, ±0.5, ±0.3) m), voxelise each branch, assign
 //!   targets, then loss = focal(cls) + 2·smooth-L1(box, sin-difference angle) + 0.2·CE(direction),
-//!   each normalised by the number of positives, and one AdamW update (linear warm-up, cosine
+//!   each normalised by the number of positives (SECOND's code weights: the three log-size terms
+//!   times `size_weight`, 1 by default), and one AdamW update (linear warm-up, cosine
 //!   decay, gradient-norm clip 10).
 //! - Determinism: the sample order of epoch e is a shuffle from ChaCha8(seed, stream e); step s
 //!   draws its augmentation from ChaCha8(seed, stream 2³² + s) and its sampled objects from
@@ -171,6 +172,16 @@ pub struct Losses {
 
 /// Forward pass and SECOND's loss on a prepared sample.
 pub fn compute_loss(model: &Stage1Model, s: &PreparedSample) -> Result<Losses, DetectError> {
+    compute_loss_with(model, s, 1.0)
+}
+
+/// [`compute_loss`] with SECOND's code weights (1, 1, 1, w, w, w, 1): the smooth-L1 terms of the
+/// three log-size residuals are multiplied by `size_weight` (1: the plain loss, bit for bit).
+pub fn compute_loss_with(
+    model: &Stage1Model,
+    s: &PreparedSample,
+    size_weight: f32,
+) -> Result<Losses, DetectError> {
     let dev = Device::Cpu;
     let heads = model.forward(&s.bevs, true)?;
     let t = &s.targets;
@@ -190,9 +201,12 @@ pub fn compute_loss(model: &Stage1Model, s: &PreparedSample) -> Result<Losses, D
         let (p6, t6) = (pred.narrow(1, 6, 1)?, tgt.narrow(1, 6, 1)?);
         let pred = Tensor::cat(&[pred.narrow(1, 0, 6)?, (p6.sin()? * t6.cos()?)?], 1)?;
         let tgt = Tensor::cat(&[tgt.narrow(1, 0, 6)?, (p6.cos()? * t6.sin()?)?], 1)?;
-        let reg = smooth_l1(&(pred - tgt)?, 1.0 / 9.0)?
-            .sum_all()?
-            .affine(2.0 / norm, 0.0)?;
+        let mut reg = smooth_l1(&(pred - tgt)?, 1.0 / 9.0)?;
+        if size_weight != 1.0 {
+            let w = [1.0, 1.0, 1.0, size_weight, size_weight, size_weight, 1.0];
+            reg = reg.broadcast_mul(&Tensor::from_slice(&w, (1, 7), &dev)?)?;
+        }
+        let reg = reg.sum_all()?.affine(2.0 / norm, 0.0)?;
         let dl = Tensor::from_slice(&t.dir, npos, &dev)?;
         let dir = cross_entropy_rows(&heads.dir.index_select(&idx, 0)?, &dl)?
             .sum_all()?
@@ -339,6 +353,8 @@ pub struct TrainConfig {
     /// Ground-truth sampling (SECOND's dataset sampling): top every frame up to this many boxes of
     /// the learned category from a database cut from the training split (0: off).
     pub gt_sample: usize,
+    /// SECOND's code weight of the three log-size residuals (1: the plain loss).
+    pub size_weight: f32,
     /// The command line, recorded in the manifest.
     pub command: String,
 }
@@ -363,6 +379,7 @@ impl TrainConfig {
             max_samples: 0,
             init: None,
             gt_sample: 0,
+            size_weight: 1.0,
             command: String::new(),
         }
     }
@@ -697,7 +714,7 @@ pub fn train_stage1(
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
         let sample = prepare_sample(&model, &frame, aug.as_ref(), &objects)?;
         let t1 = Instant::now();
-        let losses = compute_loss(&model, &sample)?;
+        let losses = compute_loss_with(&model, &sample, cfg.size_weight)?;
         let t2 = Instant::now();
         let grads = losses.total.backward()?;
         let t3 = Instant::now();
@@ -979,6 +996,34 @@ mod training_tests {
         let last = after.cls + after.reg + after.dir;
         assert!(losses.iter().all(|l| l.is_finite()));
         assert!(last < 0.8 * losses[0], "loss {losses:?} -> {last}");
+    }
+
+    #[test]
+    fn size_weight_scales_only_the_size_terms() {
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let token = ds.first_sample_token().unwrap().to_string();
+        let frame = ds.frame(&token).unwrap();
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 3).unwrap();
+        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
+        let plain = compute_loss(&model, &sample).unwrap();
+        let one = compute_loss_with(&model, &sample, 1.0).unwrap();
+        assert_eq!(plain.reg.to_bits(), one.reg.to_bits());
+        let heavy = compute_loss_with(&model, &sample, 5.0).unwrap();
+        let light = compute_loss_with(&model, &sample, 0.0).unwrap();
+        // Classification and direction do not see the weight; the size terms weigh 0, 1 and 5.
+        assert_eq!(plain.cls.to_bits(), heavy.cls.to_bits());
+        assert_eq!(plain.dir.to_bits(), heavy.dir.to_bits());
+        let size_part = plain.reg - light.reg;
+        assert!(
+            size_part > 1e-6,
+            "an untrained net has size residuals: {size_part}"
+        );
+        let expect = light.reg + 5.0 * size_part;
+        assert!(
+            (heavy.reg - expect).abs() <= 1e-4 * expect.abs(),
+            "{} vs {expect}",
+            heavy.reg
+        );
     }
 
     #[test]

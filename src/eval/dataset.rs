@@ -19,8 +19,9 @@ use serde_json::Value;
 use thiserror::Error;
 
 use super::kitti::{kitti_ap, KittiConfig, KittiReport, SampleBoxes};
+use super::localization::{self, BoxError, LocalizationSummary};
 use super::lyft::{lyft_map, thresholds, Footprints, LyftBox, LyftMap};
-use super::matching::{match_sample, GtOutcome, MatchRule, PredOutcome};
+use super::matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
 use crate::geometry::{Box3d, Detection, Pose};
 use crate::lyft::{Dataset, LyftError};
 
@@ -254,6 +255,9 @@ pub struct GtReport {
     pub range: f64,
     #[serde(flatten)]
     pub outcome: GtOutcome,
+    /// The matched prediction minus this box (absent unless matched).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<BoxError>,
 }
 
 /// Per-box outcomes of one sample.
@@ -277,6 +281,9 @@ pub struct EvalReport {
     pub predictions: PredictionSummary,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub per_box: Option<Vec<SampleReport>>,
+    /// With `per_box`: per category, how the matches under its rule are localised.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub localization: Option<Vec<LocalizationSummary>>,
 }
 
 /// One evaluated sample: ground truth in both frames and the base → global transform.
@@ -437,12 +444,18 @@ fn finish(
     let th = thresholds();
     let lyft = lyft_map(&lyft_gt, &lyft_preds, &th, Footprints::Devkit);
     let lyft_exact = lyft_map(&lyft_gt, &lyft_preds, &th, Footprints::Exact);
-    let per_box = opts.per_box.map(|rule| {
+    let matches: Option<Vec<SampleMatch>> = opts.per_box.map(|rule| {
+        samples
+            .iter()
+            .map(|sb| match_sample(&sb.preds, &sb.gts, &rule))
+            .collect()
+    });
+    let per_box = matches.as_ref().map(|matches| {
         truths
             .iter()
             .zip(&samples)
-            .map(|(s, sb)| {
-                let m = match_sample(&sb.preds, &sb.gts, &rule);
+            .zip(matches)
+            .map(|((s, sb), m)| {
                 let idx = by_sample.get(s.token.as_str()).unwrap_or(&empty);
                 SampleReport {
                     sample_token: s.token.clone(),
@@ -473,13 +486,37 @@ fn finish(
                             category: g.category.clone(),
                             range: g.box3d.bev_range(),
                             outcome: *o,
+                            error: match o {
+                                GtOutcome::Matched { pred, .. } => {
+                                    sb.preds.get(*pred).map(|p| BoxError::between(&p.box3d, &g.box3d))
+                                }
+                                _ => None,
+                            },
                         })
                         .collect(),
                 }
             })
             .collect()
     });
+    let localization = matches.as_ref().map(|matches| {
+        let pairs: Vec<(&Detection, &Detection)> = samples
+            .iter()
+            .zip(matches)
+            .flat_map(|(sb, m)| {
+                m.gts
+                    .iter()
+                    .zip(&sb.gts)
+                    .filter_map(|(o, g)| match o {
+                        GtOutcome::Matched { pred, .. } => sb.preds.get(*pred).map(|p| (p, g)),
+                        _ => None,
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        localization::summarize(pairs)
+    });
     EvalReport {
+        localization,
         kitti,
         lyft,
         lyft_exact,
@@ -530,6 +567,7 @@ mod tests {
             category: category.into(),
             range,
             outcome,
+            error: None,
         };
         let hit = GtOutcome::Matched { pred: 0, iou: 0.8 };
         let per_box = vec![SampleReport {

@@ -1,4 +1,4 @@
-//! Evaluation: per-box outcomes (TP / FP / miss), KITTI-style AP_3D as the paper reports it
+//! Evaluation: per-box outcomes (TP / FP / miss) with the residuals of each match, KITTI-style AP_3D as the paper reports it
 //! (§V-A-2), and Lyft's official mAP exactly as the devkit computes it (plus a variant with the
 //! true footprint). `dataset` ties them to a Lyft dataset and a predictions file, the input of
 //! `mlod eval`.
@@ -6,6 +6,7 @@
 pub mod ap;
 pub mod dataset;
 pub mod kitti;
+pub mod localization;
 pub mod lyft;
 pub mod matching;
 
@@ -15,5 +16,6 @@ pub use dataset::{
     EvalError, EvalOptions, EvalReport, PredictionSet,
 };
 pub use kitti::{kitti_ap, KittiConfig, SampleBoxes};
+pub use localization::{BoxError, LocalizationSummary};
 pub use lyft::{lyft_iou, lyft_map, Footprints, LyftBox, LyftMap};
 pub use matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
