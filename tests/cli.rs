@@ -316,6 +316,7 @@ fn eval_prints_the_issue_json_shape_and_rejects_bad_files() {
         assert!(car["mean_abs"][k].as_f64().is_some_and(|x| x >= 0.0), "{k}");
     }
     assert_eq!(car["size_corr"].as_array().map(Vec::len), Some(3));
+    assert!(v.get("attribution").is_none(), "only with --attribution");
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out_file).expect("--out written")).expect("json");
     assert_eq!(written, v);
@@ -449,4 +450,63 @@ fn table1_recall_bands_count_the_cars_eval_per_box_matches() {
     let bad = mlod(&["table1", "--dataset", &data, "--recall-bands", "30,20"]);
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--recall-bands"));
+}
+
+#[test]
+fn table1_attribution_agrees_with_eval_attribution() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let data = format!("{root}/sample_data");
+    let out = mlod(&[
+        "table1",
+        "--dataset",
+        &data,
+        "--cases",
+        "top",
+        "--samples",
+        "2",
+        "--attribution",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains(
+            "| Method | as predicted | true l, w, h | true x, y | true z, h | true yaw | true box |"
+        ),
+        "{table}"
+    );
+    let eval = json(&[
+        "eval",
+        "--dataset",
+        &data,
+        "--case",
+        "top",
+        "--samples",
+        "2",
+        "--per-box",
+        "--attribution",
+        "--match-iou",
+        "0.5",
+        "--match-range",
+        "30",
+        "--json",
+    ]);
+    let att = eval["attribution"].as_array().expect("attribution");
+    assert_eq!(att.len(), 6);
+    assert_eq!(att[0]["fixed"], "nothing");
+    assert_eq!(att[5]["fixed"], "all");
+    // The unedited row is eval's own AP; the table's row holds every figure, rounded.
+    assert_eq!(att[0]["kitti"], eval["kitti"]);
+    let cells: Vec<String> = att
+        .iter()
+        .map(|a| {
+            a["kitti"]["car"]["iou_0.7"]["moderate"]
+                .as_f64()
+                .map_or("–".to_string(), |x| format!("{x:.2}"))
+        })
+        .collect();
+    let row = format!("| LiDAR-Top | {} |", cells.join(" | "));
+    assert!(table.contains(&row), "{row} not in {table}");
+    // --attribution needs --per-box.
+    let bad = mlod(&["eval", "--dataset", &data, "--case", "top", "--attribution"]);
+    assert!(!bad.status.success());
 }

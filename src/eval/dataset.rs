@@ -19,7 +19,7 @@ use serde_json::Value;
 use thiserror::Error;
 
 use super::kitti::{kitti_ap, KittiConfig, KittiReport, SampleBoxes};
-use super::localization::{self, BoxError, LocalizationSummary};
+use super::localization::{self, with_truth, BoxError, Fix, LocalizationSummary};
 use super::lyft::{lyft_map, thresholds, Footprints, LyftBox, LyftMap};
 use super::matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
 use crate::geometry::{Box3d, Detection, Pose};
@@ -221,6 +221,8 @@ pub struct EvalOptions {
     pub kitti: KittiConfig,
     /// Report every box's outcome under this rule.
     pub per_box: Option<MatchRule>,
+    /// With `per_box`: AP again with each part of the matched boxes taken from the truth.
+    pub attribution: bool,
 }
 
 /// How many predictions were read, used and rejected.
@@ -284,6 +286,16 @@ pub struct EvalReport {
     /// With `per_box`: per category, how the matches under its rule are localised.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub localization: Option<Vec<LocalizationSummary>>,
+    /// With `attribution`: the AP with each part of the matched predictions replaced by the truth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attribution: Option<Vec<Attribution>>,
+}
+
+/// The AP when one part of every matched prediction's box is taken from its ground truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct Attribution {
+    pub fixed: Fix,
+    pub kitti: KittiReport,
 }
 
 /// One evaluated sample: ground truth in both frames and the base → global transform.
@@ -515,7 +527,37 @@ fn finish(
             .collect();
         localization::summarize(pairs)
     });
+    let attribution = matches.as_ref().filter(|_| opts.attribution).map(|matches| {
+        Fix::ALL
+            .iter()
+            .map(|&fix| {
+                let edited: Vec<SampleBoxes> = samples
+                    .iter()
+                    .zip(matches)
+                    .map(|(sb, m)| {
+                        let mut preds = sb.preds.clone();
+                        for (o, g) in m.gts.iter().zip(&sb.gts) {
+                            if let GtOutcome::Matched { pred, .. } = o {
+                                if let Some(p) = preds.get_mut(*pred) {
+                                    p.box3d = with_truth(&p.box3d, &g.box3d, fix);
+                                }
+                            }
+                        }
+                        SampleBoxes {
+                            preds,
+                            gts: sb.gts.clone(),
+                        }
+                    })
+                    .collect();
+                Attribution {
+                    fixed: fix,
+                    kitti: kitti_ap(&edited, &opts.kitti),
+                }
+            })
+            .collect()
+    });
     EvalReport {
+        attribution,
         localization,
         kitti,
         lyft,

@@ -6,10 +6,74 @@
 //! Why: at IoU ≥ 0.7 a car is found or missed by a few centimetres, so AP alone cannot say whether
 //! a detector lacks the points or the regression. A size correlation near 0 with a mean error
 //! near 0 means the network predicts the average box, whatever the points show.
+//!
+//! [`Fix`] and [`with_truth`] answer "what would AP be if this residual were zero": every
+//! prediction matched under the per-box rule gets that part of its box from its ground truth, and
+//! AP is computed again on the edited predictions (the matching at each AP threshold runs anew).
 
 use serde::Serialize;
 
 use crate::geometry::{Box3d, Detection};
+
+/// Which part of a matched prediction's box is replaced by its ground truth's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fix {
+    /// Nothing: the AP as evaluated.
+    Nothing,
+    /// Length, width and height.
+    Size,
+    /// The centre's x and y.
+    BevCentre,
+    /// The centre's z and the height.
+    Vertical,
+    /// The yaw.
+    Yaw,
+    /// The whole box: what is left is finding the object and ranking it.
+    All,
+}
+
+impl Fix {
+    pub const ALL: [Fix; 6] = [
+        Fix::Nothing,
+        Fix::Size,
+        Fix::BevCentre,
+        Fix::Vertical,
+        Fix::Yaw,
+        Fix::All,
+    ];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Fix::Nothing => "as predicted",
+            Fix::Size => "true l, w, h",
+            Fix::BevCentre => "true x, y",
+            Fix::Vertical => "true z, h",
+            Fix::Yaw => "true yaw",
+            Fix::All => "true box",
+        }
+    }
+}
+
+/// `pred` with the part `fix` names taken from `gt`.
+pub fn with_truth(pred: &Box3d, gt: &Box3d, fix: Fix) -> Box3d {
+    let mut b = *pred;
+    match fix {
+        Fix::Nothing => {}
+        Fix::Size => b.size_lwh = gt.size_lwh,
+        Fix::BevCentre => {
+            b.center[0] = gt.center[0];
+            b.center[1] = gt.center[1];
+        }
+        Fix::Vertical => {
+            b.center[2] = gt.center[2];
+            b.size_lwh[2] = gt.size_lwh[2];
+        }
+        Fix::Yaw => b.yaw = gt.yaw,
+        Fix::All => b = *gt,
+    }
+    b
+}
 
 /// Prediction minus ground truth for one matched pair, in the ground truth's heading frame (m, rad).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
@@ -222,6 +286,22 @@ mod tests {
         assert!(m[0].bias.dl.abs() < 1e-12, "the mean size has no bias");
         assert!((m[0].mean_abs.dl - 0.275).abs() < 1e-12, "{}", m[0].mean_abs.dl);
         assert!((m[0].size_std_true[0] - 0.3031).abs() < 1e-3 && m[0].size_std_pred[0] < 1e-12);
+    }
+
+    #[test]
+    fn with_truth_replaces_only_the_named_part() {
+        let gt = Box3d::new([10.0, 5.0, -1.0], [4.5, 1.9, 1.6], 0.2);
+        let p = Box3d::new([10.3, 4.9, -0.9], [4.7, 1.8, 1.5], 0.25);
+        assert_eq!(with_truth(&p, &gt, Fix::Nothing), p);
+        assert_eq!(with_truth(&p, &gt, Fix::All), gt);
+        let s = with_truth(&p, &gt, Fix::Size);
+        assert_eq!((s.center, s.size_lwh, s.yaw), (p.center, gt.size_lwh, p.yaw));
+        let c = with_truth(&p, &gt, Fix::BevCentre);
+        assert_eq!((c.center, c.size_lwh), ([10.0, 5.0, -0.9], p.size_lwh));
+        let v = with_truth(&p, &gt, Fix::Vertical);
+        assert_eq!((v.center, v.size_lwh), ([10.3, 4.9, -1.0], [4.7, 1.8, 1.6]));
+        let y = with_truth(&p, &gt, Fix::Yaw);
+        assert_eq!((y.center, y.yaw), (p.center, gt.yaw));
     }
 
     #[test]

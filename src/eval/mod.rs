@@ -13,9 +13,9 @@ pub mod matching;
 pub use ap::Interpolation;
 pub use dataset::{
     evaluate, evaluate_detections, parse_predictions, read_predictions, recall_by_range, sample_tokens,
-    EvalError, EvalOptions, EvalReport, PredictionSet,
+    Attribution, EvalError, EvalOptions, EvalReport, PredictionSet,
 };
 pub use kitti::{kitti_ap, KittiConfig, SampleBoxes};
-pub use localization::{BoxError, LocalizationSummary};
+pub use localization::{with_truth, BoxError, Fix, LocalizationSummary};
 pub use lyft::{lyft_iou, lyft_map, Footprints, LyftBox, LyftMap};
 pub use matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
