@@ -951,16 +951,21 @@ fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()> {
         Some(Some(x)) => format!("{x:>7.2}"),
         _ => format!("{:>7}", "-"),
     };
+    // One class's easy / moderate / hard cells at threshold key `t`.
+    let row = |per_t: &mlod::eval::kitti::Ordered<mlod::eval::kitti::Ordered<Option<f64>>>, t: &str| {
+        let d = per_t.get(t);
+        ["easy", "moderate", "hard"]
+            .iter()
+            .map(|k| cell(d.and_then(|d| d.get(k))))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
     for (class, per_t) in &report.kitti.0 {
-        let row = |t: &str| {
-            let d = per_t.get(t);
-            ["easy", "moderate", "hard"]
-                .iter()
-                .map(|k| cell(d.and_then(|d| d.get(k))))
-                .collect::<Vec<_>>()
-                .join(" ")
-        };
-        println!("{class:<20} {}   {}", row("iou_0.7"), row("iou_0.5"));
+        println!(
+            "{class:<20} {}   {}",
+            row(per_t, "iou_0.7"),
+            row(per_t, "iou_0.5")
+        );
     }
     println!("\nLyft mAP (IoU > t)   devkit   exact footprint");
     for (t, m) in &report.lyft.per_threshold {
@@ -996,19 +1001,11 @@ fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()> {
         for class in classes {
             for a in att {
                 let Some(per_t) = a.kitti.get(class) else { continue };
-                let row = |t: &str| {
-                    let d = per_t.get(t);
-                    ["easy", "moderate", "hard"]
-                        .iter()
-                        .map(|k| cell(d.and_then(|d| d.get(k))))
-                        .collect::<Vec<_>>()
-                        .join(" ")
-                };
                 println!(
                     "{class:<20} {:<14} {}   {}",
                     a.fixed.label(),
-                    row("iou_0.7"),
-                    row("iou_0.5")
+                    row(per_t, "iou_0.7"),
+                    row(per_t, "iou_0.5")
                 );
             }
         }
