@@ -25,6 +25,7 @@ fn detector(case: Case) -> Box<dyn Detector> {
                 .into(),
             nms_iou: 0.1,
             max_detections: 100,
+            vote_iou: None,
         }),
         c => Box::new(fresh(c)),
     }

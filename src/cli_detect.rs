@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use mlod::detect::model::load_detector;
+use mlod::detect::model::{load_detector_with, Voting};
 use mlod::detect::train::{calibrate_temperatures, train_stage1, TrainConfig};
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, Detection};
@@ -17,6 +17,29 @@ pub enum TrainCommand {
     Stage1(Stage1Args),
     /// Fit Result Fusion's per-generator temperatures on the validation split (scenes % 10 == 9).
     CalibrateTemperature(CalibrateArgs),
+    /// Choose the box-voting IoU of every detector on the validation split (plain NMS or each
+    /// candidate, by the mean car moderate AP_3D@0.7 over the cases) and record it, with every
+    /// candidate's figures, in the models' manifest.json.
+    TuneVote(TuneVoteArgs),
+}
+
+#[derive(clap::Args)]
+pub struct TuneVoteArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models); its manifest records the choice.
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Candidate vote IoUs in (0, 1] besides plain NMS (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.7")]
+    candidates: Vec<f64>,
+    /// The cases scored (comma separated; default: all six).
+    #[arg(long, value_delimiter = ',')]
+    cases: Vec<Case>,
+    /// At most this many validation samples.
+    #[arg(long)]
+    samples: Option<usize>,
 }
 
 #[derive(clap::Args)]
@@ -96,9 +119,19 @@ pub struct DetectorRun {
     /// Models folder with manifest.json (default: assets/models).
     #[arg(long)]
     pub models: Option<PathBuf>,
+    /// Box voting after NMS: each detection becomes the score-weighted mean of the candidates
+    /// overlapping it by at least this IoU (BEV; 3D in Result Fusion's merge). `manifest`: as
+    /// the models' manifest.json says (`mlod train tune-vote`), `off`: plain NMS, or an IoU.
+    #[arg(long, default_value = "manifest")]
+    pub vote_iou: Voting,
 }
 
 impl DetectorRun {
+    /// The detector of `case` from the models folder, with the decoding asked for.
+    pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
+        Ok(load_detector_with(&self.models_dir(), case, self.vote_iou)?)
+    }
+
     /// The models folder asked for, or the shipped one.
     pub fn models_dir(&self) -> PathBuf {
         self.models.clone().unwrap_or_else(default_models_dir)
@@ -205,6 +238,7 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             );
             Ok(())
         }
+        TrainCommand::TuneVote(a) => tune_vote(a),
         TrainCommand::CalibrateTemperature(a) => {
             let models = a.models.unwrap_or_else(default_models_dir);
             let temps = calibrate_temperatures(
@@ -227,6 +261,85 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
     }
 }
 
+/// `mlod train tune-vote`: every candidate on every case over the validation scenes; the best
+/// mean car moderate AP_3D@0.7 wins (plain NMS on a tie) and goes into the manifest atomically.
+fn tune_vote(a: TuneVoteArgs) -> Result<()> {
+    use mlod::detect::weights::{Manifest, VoteTuning};
+    use std::collections::BTreeMap;
+    let models = a.models.clone().unwrap_or_else(default_models_dir);
+    let mut manifest = Manifest::load(&models)?;
+    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let opts = mlod::eval::EvalOptions {
+        samples: a.samples,
+        validation_only: true,
+        ..Default::default()
+    };
+    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    if tokens.is_empty() {
+        anyhow::bail!(
+            "{}: no validation samples (every 10th scene)",
+            a.dataset.display()
+        );
+    }
+    let cases = if a.cases.is_empty() {
+        Case::ALL.to_vec()
+    } else {
+        a.cases.clone()
+    };
+    let mut candidates = vec![Voting::Off];
+    for &c in &a.candidates {
+        candidates.push(c.to_string().parse::<Voting>().map_err(anyhow::Error::msg)?);
+    }
+    let mut validation = BTreeMap::new();
+    let mut best: Option<(Voting, f64)> = None;
+    for voting in candidates {
+        let run = DetectorRun {
+            alpha: 0.0,
+            seed: 0,
+            models: Some(models.clone()),
+            vote_iou: voting,
+        };
+        let mut per_case = BTreeMap::new();
+        for &case in &cases {
+            let dets = crate::detect_case(&dataset, &tokens, &run, case, &FuseParams::default())?;
+            let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+            let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).with_context(|| {
+                format!("{}: no car of moderate difficulty in the validation scenes", case)
+            })?;
+            eprintln!("vote {voting}: {} {ap:.2}", case.paper_name());
+            per_case.insert(case.to_string(), ap);
+        }
+        let mean = per_case.values().sum::<f64>() / per_case.len() as f64;
+        per_case.insert("mean".to_string(), mean);
+        println!(
+            "vote {voting}: mean car moderate AP_3D@0.7 {mean:.2} over {} samples",
+            tokens.len()
+        );
+        validation.insert(voting.to_string(), per_case);
+        if best.is_none_or(|(_, b)| mean > b) {
+            best = Some((voting, mean));
+        }
+    }
+    let iou = match best {
+        Some((Voting::Iou(v), _)) => Some(v),
+        _ => None,
+    };
+    manifest.vote = Some(VoteTuning {
+        iou,
+        command: command_line(),
+        validation,
+    });
+    manifest.save(&models)?;
+    match iou {
+        Some(v) => println!("chose vote IoU {v} -> {}", models.join(Manifest::FILE).display()),
+        None => println!(
+            "plain NMS stays best -> {}",
+            models.join(Manifest::FILE).display()
+        ),
+    }
+    Ok(())
+}
+
 pub fn detect(a: DetectArgs) -> Result<()> {
     let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
     let token = match &a.sample {
@@ -238,7 +351,7 @@ pub fn detect(a: DetectArgs) -> Result<()> {
     };
     let frame = dataset.frame(&token)?;
     let params = a.run.fuse_params()?;
-    let detector = load_detector(&a.run.models_dir(), a.case)?;
+    let detector = a.run.load(a.case)?;
     let t0 = std::time::Instant::now();
     let dets = detector.detect(&frame, &params)?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;

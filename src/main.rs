@@ -86,6 +86,10 @@ struct Table1Args {
     /// Evaluate only the first N samples.
     #[arg(long)]
     samples: Option<usize>,
+    /// Only the validation scenes of a training dataset (every 10th scene: the split training
+    /// holds out), for tuning a setting without touching the test split.
+    #[arg(long)]
+    validation: bool,
     #[command(flatten)]
     run: cli_detect::DetectorRun,
     /// Write every case's whole evaluation report here as JSON (atomically).
@@ -125,6 +129,10 @@ struct EvalArgs {
     /// Evaluate only the first N samples of the dataset.
     #[arg(long)]
     samples: Option<usize>,
+    /// Only the validation scenes of a training dataset (every 10th scene: the split training
+    /// holds out), for tuning a setting without touching the test split.
+    #[arg(long)]
+    validation: bool,
     /// KITTI recall points: r40 (default) or r11.
     #[arg(long, default_value = "r40", value_parser = ["r40", "r11"])]
     interpolation: String,
@@ -671,12 +679,12 @@ fn run(cli: Cli) -> Result<()> {
 fn detect_case(
     dataset: &mlod::lyft::Dataset,
     tokens: &[String],
-    models: &std::path::Path,
+    run: &cli_detect::DetectorRun,
     case: mlod::detect::Case,
     params: &mlod::pipeline::FuseParams,
 ) -> Result<std::collections::HashMap<String, Vec<mlod::detect::Detection>>> {
     use rayon::prelude::*;
-    let detector = mlod::detect::model::load_detector(models, case)?;
+    let detector = run.load(case)?;
     let bar = indicatif::ProgressBar::new(tokens.len() as u64);
     let dets = tokens
         .par_iter()
@@ -697,12 +705,12 @@ fn detect_case(
 fn run_case(
     dataset: &mlod::lyft::Dataset,
     tokens: &[String],
-    models: &std::path::Path,
+    run: &cli_detect::DetectorRun,
     case: mlod::detect::Case,
     params: &mlod::pipeline::FuseParams,
     opts: &mlod::eval::EvalOptions,
 ) -> Result<mlod::eval::EvalReport> {
-    let dets = detect_case(dataset, tokens, models, case, params)?;
+    let dets = detect_case(dataset, tokens, run, case, params)?;
     Ok(mlod::eval::evaluate_detections(dataset, &dets, opts)?)
 }
 
@@ -715,6 +723,7 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
     let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
     let opts = mlod::eval::EvalOptions {
         samples: args.samples,
+        validation_only: args.validation,
         per_box: bands.last().map(|&max_range| mlod::eval::MatchRule {
             iou_threshold: args.recall_iou,
             kind: mlod::geometry::IouKind::ThreeD,
@@ -723,6 +732,12 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         ..Default::default()
     };
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    if args.validation && tokens.is_empty() {
+        bail!(
+            "{}: no validation samples (the validation split is every 10th scene)",
+            args.dataset.display()
+        );
+    }
     let models = args.run.models_dir();
     let params = args.run.fuse_params()?;
     let cases = if args.cases.is_empty() {
@@ -736,11 +751,12 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
     let mut attributions = Vec::new();
     for case in cases {
         let start = std::time::Instant::now();
-        let dets = detect_case(&dataset, &tokens, &models, case, &params)?;
+        let dets = detect_case(&dataset, &tokens, &args.run, case, &params)?;
         let mut report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
         if args.attribution {
             let att_opts = mlod::eval::EvalOptions {
                 samples: args.samples,
+                validation_only: args.validation,
                 per_box: Some(mlod::eval::MatchRule {
                     iou_threshold: 0.5,
                     kind: mlod::geometry::IouKind::ThreeD,
@@ -750,30 +766,16 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
                 ..Default::default()
             };
             let att = mlod::eval::evaluate_detections(&dataset, &dets, &att_opts)?.attribution;
-            let moderate = |a: &mlod::eval::Attribution| {
-                a.kitti
-                    .get("car")
-                    .and_then(|t| t.get("iou_0.7"))
-                    .and_then(|d| d.get("moderate"))
-                    .copied()
-                    .flatten()
-            };
             attributions.push((
                 case,
                 att.iter()
                     .flatten()
-                    .map(|a| (a.fixed, moderate(a)))
+                    .map(|a| (a.fixed, mlod::eval::kitti::car_moderate_07(&a.kitti)))
                     .collect::<Vec<_>>(),
             ));
             report.attribution = att;
         }
-        let car = report.kitti.0.iter().find(|(k, _)| k == "car").map(|(_, v)| v);
-        let cell = |t: &str, d: &str| -> Option<f64> {
-            car.and_then(|c| c.get(t))
-                .and_then(|m| m.get(d))
-                .copied()
-                .flatten()
-        };
+        let cell = |t: &str, d: &str| mlod::eval::kitti::ap_cell(&report.kitti, "car", t, d);
         let figures: Vec<(String, Option<f64>)> = ["iou_0.7", "iou_0.5"]
             .iter()
             .flat_map(|t| ["easy", "moderate", "hard"].map(|d| (format!("{d}_ap3d_{}", &t[4..]), cell(t, d))))
@@ -889,6 +891,7 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
     let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
     let mut opts = EvalOptions {
         samples: args.samples,
+        validation_only: args.validation,
         ..Default::default()
     };
     if args.interpolation == "r11" {
@@ -903,10 +906,16 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         opts.attribution = args.attribution;
     }
     let tokens = mlod::eval::sample_tokens(&dataset, &opts);
+    if args.validation && tokens.is_empty() {
+        bail!(
+            "{}: no validation samples (the validation split is every 10th scene)",
+            args.dataset.display()
+        );
+    }
     let Some(pred_path) = &args.pred else {
         let case = args.case.context("give --pred FILE or --case CASE")?;
         let params = args.run.fuse_params()?;
-        let report = run_case(&dataset, &tokens, &args.run.models_dir(), case, &params, &opts)?;
+        let report = run_case(&dataset, &tokens, &args.run, case, &params, &opts)?;
         return print_eval(&args, &report);
     };
     let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();

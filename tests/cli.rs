@@ -510,3 +510,117 @@ fn table1_attribution_agrees_with_eval_attribution() {
     let bad = mlod(&["eval", "--dataset", &data, "--case", "top", "--attribution"]);
     assert!(!bad.status.success());
 }
+
+#[test]
+fn tune_vote_records_its_choice_in_the_manifest() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let dir = std::env::temp_dir().join(format!("mlod-cli-vote-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let data = dir.join("data");
+    let models = dir.join("models");
+    std::fs::create_dir_all(&models).expect("tmp");
+    // Ten one-sample scenes: the tenth is the validation split.
+    let synth = mlod(&[
+        "synth",
+        "--out",
+        data.to_str().expect("utf-8"),
+        "--scenes",
+        "10",
+        "--samples-per-scene",
+        "1",
+        "--seed",
+        "7",
+    ]);
+    assert!(
+        synth.status.success(),
+        "{}",
+        String::from_utf8_lossy(&synth.stderr)
+    );
+    let shipped = std::path::Path::new(root).join("assets/models");
+    for f in ["manifest.json", "top.safetensors"] {
+        std::fs::copy(shipped.join(f), models.join(f)).expect("copy the shipped model");
+    }
+    let (d, m) = (data.to_str().expect("utf-8"), models.to_str().expect("utf-8"));
+    let out = mlod(&[
+        "train",
+        "tune-vote",
+        "--dataset",
+        d,
+        "--models",
+        m,
+        "--cases",
+        "top",
+        "--candidates",
+        "0.5",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(models.join("manifest.json")).expect("manifest"))
+            .expect("JSON");
+    let vote = &manifest["vote"];
+    assert!(vote["command"].as_str().expect("command").contains("tune-vote"));
+    let off = vote["validation"]["off"]["mean"]
+        .as_f64()
+        .expect("plain NMS scored");
+    let half = vote["validation"]["0.5"]["mean"].as_f64().expect("0.5 scored");
+    assert_eq!(
+        vote["validation"]["0.5"]["top"].as_f64(),
+        Some(half),
+        "one case: its AP is the mean"
+    );
+    // The better candidate is chosen; plain NMS keeps a tie.
+    if half > off {
+        assert_eq!(vote["iou"].as_f64(), Some(0.5));
+    } else {
+        assert!(vote["iou"].is_null(), "{vote}");
+    }
+    // The models were not touched: the rest of the manifest is the shipped one.
+    let before: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(shipped.join("manifest.json")).expect("manifest"))
+            .expect("JSON");
+    assert_eq!(manifest["models"], before["models"]);
+    // The same validation scenes through table1 give the same figure for the chosen setting.
+    let chosen = if half > off { "0.5" } else { "off" };
+    let out = mlod(&[
+        "table1",
+        "--dataset",
+        d,
+        "--validation",
+        "--cases",
+        "top",
+        "--models",
+        m,
+        "--vote-iou",
+        chosen,
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let best = if half > off { half } else { off };
+    assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("{best:.2}")));
+
+    // sample_data is one scene: no validation split, said clearly.
+    let sample = format!("{root}/sample_data");
+    for args in [
+        vec!["train", "tune-vote", "--dataset", &sample, "--models", m],
+        vec!["table1", "--dataset", &sample, "--validation", "--cases", "top"],
+    ] {
+        let out = mlod(&args);
+        assert!(!out.status.success());
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("no validation samples"),
+            "{args:?}"
+        );
+    }
+    // A vote IoU outside (0, 1] is a usage error.
+    let out = mlod(&[
+        "detect",
+        "--dataset",
+        &sample,
+        "--case",
+        "top",
+        "--vote-iou",
+        "1.5",
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("(0, 1]"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -97,3 +97,47 @@ fn v3_candidates_load_and_record_where_they_started() {
         assert!(from.command.contains("train stage1") && from.steps > 0, "{case}");
     }
 }
+
+#[test]
+fn voting_moves_the_boxes_but_keeps_the_detections() {
+    use mlod::detect::model::{load_detector_with, Voting};
+    let models = default_models_dir();
+    let Ok(manifest) = Manifest::load(&models) else {
+        return;
+    };
+    if ![Case::Top, Case::Left, Case::Right]
+        .iter()
+        .all(|c| manifest.models.contains_key(c))
+    {
+        return;
+    }
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+    let frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
+    for case in [Case::Top, Case::Result] {
+        let run = |v: Voting| {
+            load_detector_with(&models, case, v)
+                .unwrap()
+                .detect(&frame, &FuseParams::default())
+                .unwrap()
+        };
+        let (plain, voted) = (run(Voting::Off), run(Voting::Iou(0.5)));
+        assert!(!plain.is_empty(), "{case}: no detections to vote on");
+        assert_eq!(plain.len(), voted.len(), "{case}: voting keeps NMS's choice");
+        let mut moved = 0;
+        for (p, v) in plain.iter().zip(&voted) {
+            assert_eq!((p.score, &p.category), (v.score, &v.category), "{case}");
+            let d = (0..3)
+                .map(|j| (p.box3d.center[j] - v.box3d.center[j]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            // Only boxes overlapping the kept one by BEV IoU ≥ 0.5 vote: the mean stays well
+            // inside the kept footprint.
+            assert!(
+                d < 0.5 * p.box3d.size_lwh[0],
+                "{case}: a voted box moved {d} m: {p:?} -> {v:?}"
+            );
+            moved += usize::from(p.box3d != v.box3d);
+        }
+        assert!(moved > 0, "{case}: voting changed no box");
+    }
+}

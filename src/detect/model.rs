@@ -25,7 +25,7 @@ use super::net::{HeadOutput, NetConfig, Stage1Net};
 use super::voxel::{voxelize, Bev, GridConfig, PointsRef};
 use super::weights::{encode_safetensors, read_weights, Manifest};
 use super::{Case, DetectError, Detection, Detector};
-use crate::geometry::{nms, Box3d, IouKind};
+use crate::geometry::{nms, vote, Box3d, IouKind};
 use crate::lyft::{Frame, LidarChannel};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
@@ -44,6 +44,11 @@ pub struct ModelConfig {
     pub nms_iou: f64,
     /// Detections kept after NMS.
     pub max_detections: usize,
+    /// Box voting after NMS ([`crate::geometry::nms::vote`]): each kept box becomes the
+    /// score-weighted mean of the candidates overlapping it by at least this BEV IoU. `None`
+    /// (the default, and every model trained before it existed) keeps NMS's boxes as they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vote_iou: Option<f64>,
 }
 
 impl ModelConfig {
@@ -58,6 +63,7 @@ impl ModelConfig {
             pre_nms: 500,
             nms_iou: 0.1,
             max_detections: 100,
+            vote_iou: None,
         }
     }
 
@@ -180,11 +186,16 @@ impl Stage1Model {
         Self::from_tensors(config, w.tensors).map_err(|e| bad(format!("does not fit the network: {e}")))
     }
 
-    /// Loads the shipped model of `case` from a models folder (manifest + checksum).
+    /// Loads the shipped model of `case` from a models folder (manifest + checksum), decoding
+    /// with the manifest's box voting when it has one.
     pub fn load_shipped(dir: &Path, case: Case) -> Result<Self, DetectError> {
         let manifest = Manifest::load(dir)?;
         let entry = manifest.entry(dir, case)?;
-        Self::load(&dir.join(&entry.file), case, Some(&entry.sha256))
+        let mut model = Self::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+        if let Some(v) = manifest.vote.as_ref().and_then(|v| v.iou) {
+            model.config.vote_iou = Some(v);
+        }
+        Ok(model)
     }
 
     /// The weights (trainable variables or loaded tensors) as a safetensors file with the
@@ -306,14 +317,19 @@ impl Stage1Model {
             scores.push(1.0 / (1.0 + (-z).exp()));
             logits.push(cls[i]);
         }
-        let keep = nms(&boxes, &scores, c.nms_iou, IouKind::Bev);
+        let mut keep = nms(&boxes, &scores, c.nms_iou, IouKind::Bev);
+        keep.truncate(c.max_detections);
+        let kept_boxes = match c.vote_iou {
+            Some(v) => vote(&boxes, &scores, &keep, v, IouKind::Bev),
+            None => keep.iter().map(|&k| boxes[k]).collect(),
+        };
         Ok(keep
             .into_iter()
-            .take(c.max_detections)
-            .map(|k| {
+            .zip(kept_boxes)
+            .map(|(k, box3d)| {
                 (
                     Detection {
-                        box3d: boxes[k],
+                        box3d,
                         score: scores[k],
                         category: c.anchor.category.clone(),
                     },
@@ -370,16 +386,21 @@ pub struct ResultFusion {
     /// 3D IoU above which the merge suppresses a box.
     pub nms_iou: f64,
     pub max_detections: usize,
+    /// Box voting in the merge (as [`ModelConfig::vote_iou`], on 3D IoU): each kept box becomes
+    /// the score-weighted mean of the generators' boxes overlapping it by at least this much.
+    pub vote_iou: Option<f64>,
 }
 
 impl ResultFusion {
     /// Loads the three shipped single-LiDAR models and their temperatures.
     pub fn load_shipped(dir: &Path) -> Result<Self, DetectError> {
         let manifest = Manifest::load(dir)?;
+        let vote_iou = manifest.vote.as_ref().and_then(|v| v.iou);
         let mut generators = Vec::new();
         for case in [Case::Top, Case::Left, Case::Right] {
             let entry = manifest.entry(dir, case)?;
-            let model = Stage1Model::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+            let mut model = Stage1Model::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+            model.config.vote_iou = vote_iou;
             let t = manifest.temperatures.get(&case).copied().unwrap_or(1.0);
             generators.push((model, t));
         }
@@ -387,6 +408,7 @@ impl ResultFusion {
             generators,
             nms_iou: 0.1,
             max_detections: 100,
+            vote_iou,
         })
     }
 
@@ -394,10 +416,15 @@ impl ResultFusion {
     pub fn merge(&self, all: Vec<Detection>) -> Vec<Detection> {
         let boxes: Vec<Box3d> = all.iter().map(|d| d.box3d).collect();
         let scores: Vec<f32> = all.iter().map(|d| d.score).collect();
-        nms(&boxes, &scores, self.nms_iou, IouKind::ThreeD)
-            .into_iter()
-            .take(self.max_detections)
-            .filter_map(|k| all.get(k).cloned())
+        let mut keep = nms(&boxes, &scores, self.nms_iou, IouKind::ThreeD);
+        keep.truncate(self.max_detections);
+        let voted = match self.vote_iou {
+            Some(v) => vote(&boxes, &scores, &keep, v, IouKind::ThreeD),
+            None => keep.iter().map(|&k| boxes[k]).collect(),
+        };
+        keep.into_iter()
+            .zip(voted)
+            .filter_map(|(k, box3d)| all.get(k).map(|d| Detection { box3d, ..d.clone() }))
             .collect()
     }
 
@@ -444,11 +471,84 @@ impl Detector for ResultFusion {
     }
 }
 
-/// The shipped detector of any case, behind the one trait.
+/// How a loaded detector's boxes are voted after NMS.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Voting {
+    /// As the models folder's manifest says (plain NMS when it says nothing).
+    #[default]
+    Manifest,
+    /// Plain NMS.
+    Off,
+    /// Box voting at this IoU, in (0, 1].
+    Iou(f64),
+}
+
+impl std::str::FromStr for Voting {
+    type Err = String;
+
+    /// `manifest`, `off`, or an IoU in (0, 1].
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "manifest" => Ok(Self::Manifest),
+            "off" => Ok(Self::Off),
+            _ => {
+                let v: f64 = s
+                    .parse()
+                    .map_err(|_| format!("expected manifest, off or an IoU in (0, 1], got {s:?}"))?;
+                if v.is_finite() && v > 0.0 && v <= 1.0 {
+                    Ok(Self::Iou(v))
+                } else {
+                    Err(format!("a vote IoU must be in (0, 1], got {s}"))
+                }
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for Voting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Manifest => f.write_str("manifest"),
+            Self::Off => f.write_str("off"),
+            Self::Iou(v) => write!(f, "{v}"),
+        }
+    }
+}
+
+/// The shipped detector of any case, behind the one trait (decoding as its manifest says).
 pub fn load_detector(dir: &Path, case: Case) -> Result<Box<dyn Detector>, DetectError> {
+    load_detector_with(dir, case, Voting::Manifest)
+}
+
+/// [`load_detector`] with the box voting chosen by the caller: in a model's decoding on BEV IoU,
+/// and in Result Fusion in every generator and in the 3D-IoU merge.
+pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn Detector>, DetectError> {
+    let vote_iou = match voting {
+        Voting::Manifest => None,
+        Voting::Off => Some(None),
+        Voting::Iou(v) if v.is_finite() && v > 0.0 && v <= 1.0 => Some(Some(v)),
+        Voting::Iou(v) => {
+            return Err(DetectError::BadParameter(format!(
+                "a vote IoU must be in (0, 1], got {v}"
+            )))
+        }
+    };
     Ok(match case {
-        Case::Result => Box::new(ResultFusion::load_shipped(dir)?),
-        c => Box::new(Stage1Model::load_shipped(dir, c)?),
+        Case::Result => {
+            let mut r = ResultFusion::load_shipped(dir)?;
+            if let Some(v) = vote_iou {
+                r.generators.iter_mut().for_each(|(m, _)| m.config.vote_iou = v);
+                r.vote_iou = v;
+            }
+            Box::new(r)
+        }
+        c => {
+            let mut m = Stage1Model::load_shipped(dir, c)?;
+            if let Some(v) = vote_iou {
+                m.config.vote_iou = v;
+            }
+            Box::new(m)
+        }
     })
 }
 

@@ -223,6 +223,9 @@ pub struct EvalOptions {
     pub per_box: Option<MatchRule>,
     /// With `per_box`: AP again with each part of the matched boxes taken from the truth.
     pub attribution: bool,
+    /// Only the validation scenes of a training dataset (every 10th scene, the split that
+    /// training holds out: [`crate::detect::train::split`]), for tuning without the test split.
+    pub validation_only: bool,
 }
 
 /// How many predictions were read, used and rejected.
@@ -349,9 +352,13 @@ fn to_base(b: &LyftBox, global_to_base: &Pose) -> Box3d {
 }
 
 fn evaluated_tokens(dataset: &Dataset, opts: &EvalOptions) -> Vec<String> {
-    let all = dataset.sample_tokens();
-    let n = opts.samples.unwrap_or(all.len()).min(all.len());
-    all[..n].iter().map(|s| (*s).to_owned()).collect()
+    let mut all: Vec<String> = if opts.validation_only {
+        crate::detect::train::split(dataset).1
+    } else {
+        dataset.sample_tokens().iter().map(|s| (*s).to_owned()).collect()
+    };
+    all.truncate(opts.samples.unwrap_or(all.len()));
+    all
 }
 
 /// The sample tokens `evaluate` will use (for validating predictions before evaluating).

@@ -72,6 +72,17 @@ impl Default for KittiConfig {
 /// AP in percent per class → "iou_<t>" → difficulty (`None`: no ground truth in range).
 pub type KittiReport = Ordered<Ordered<Ordered<Option<f64>>>>;
 
+/// One cell of a [`KittiReport`]: AP (%) of `class` at threshold key `iou` (`"iou_0.7"`) and
+/// `difficulty`; `None` when the report has no such cell or it has no ground truth.
+pub fn ap_cell(report: &KittiReport, class: &str, iou: &str, difficulty: &str) -> Option<f64> {
+    report.get(class)?.get(iou)?.get(difficulty).copied().flatten()
+}
+
+/// Car moderate AP_3D@0.7 (%): the figure the paper's claims compare.
+pub fn car_moderate_07(report: &KittiReport) -> Option<f64> {
+    ap_cell(report, "car", "iou_0.7", "moderate")
+}
+
 /// The classes of the ground truth, `car` first, then alphabetical.
 pub fn classes(samples: &[SampleBoxes]) -> Vec<String> {
     let mut c: Vec<String> = samples

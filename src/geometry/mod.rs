@@ -8,7 +8,7 @@ pub mod so3;
 
 pub use box3d::{Box3d, Detection};
 pub use iou::{iou_3d, iou_bev, iou_matrix, IouKind};
-pub use nms::nms;
+pub use nms::{nms, vote};
 pub use so3::{
     exp, hat, log, matrix_to_rpy, pose_from_rt, quat_from_wxyz, quat_to_wxyz, rpy_to_matrix, vee, wrap_angle,
     yaw_of, Pose,
