@@ -288,7 +288,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
     };
     let mut candidates = vec![Voting::Off];
     for &c in &a.candidates {
-        candidates.push(c.to_string().parse::<Voting>().map_err(anyhow::Error::msg)?);
+        candidates.push(Voting::iou(c).map_err(anyhow::Error::msg)?);
     }
     let mut validation = BTreeMap::new();
     let mut best: Option<(Voting, f64)> = None;

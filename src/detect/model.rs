@@ -483,6 +483,17 @@ pub enum Voting {
     Iou(f64),
 }
 
+impl Voting {
+    /// Voting at `v`, which must be an IoU in (0, 1].
+    pub fn iou(v: f64) -> Result<Self, String> {
+        if v.is_finite() && v > 0.0 && v <= 1.0 {
+            Ok(Self::Iou(v))
+        } else {
+            Err(format!("a vote IoU must be in (0, 1], got {v}"))
+        }
+    }
+}
+
 impl std::str::FromStr for Voting {
     type Err = String;
 
@@ -491,16 +502,10 @@ impl std::str::FromStr for Voting {
         match s {
             "manifest" => Ok(Self::Manifest),
             "off" => Ok(Self::Off),
-            _ => {
-                let v: f64 = s
-                    .parse()
-                    .map_err(|_| format!("expected manifest, off or an IoU in (0, 1], got {s:?}"))?;
-                if v.is_finite() && v > 0.0 && v <= 1.0 {
-                    Ok(Self::Iou(v))
-                } else {
-                    Err(format!("a vote IoU must be in (0, 1], got {s}"))
-                }
-            }
+            _ => Self::iou(
+                s.parse()
+                    .map_err(|_| format!("expected manifest, off or an IoU in (0, 1], got {s:?}"))?,
+            ),
         }
     }
 }
@@ -526,11 +531,9 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
     let vote_iou = match voting {
         Voting::Manifest => None,
         Voting::Off => Some(None),
-        Voting::Iou(v) if v.is_finite() && v > 0.0 && v <= 1.0 => Some(Some(v)),
         Voting::Iou(v) => {
-            return Err(DetectError::BadParameter(format!(
-                "a vote IoU must be in (0, 1], got {v}"
-            )))
+            Voting::iou(v).map_err(DetectError::BadParameter)?;
+            Some(Some(v))
         }
     };
     Ok(match case {

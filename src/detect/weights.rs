@@ -202,10 +202,21 @@ impl Manifest {
     pub fn load(dir: &Path) -> Result<Self, DetectError> {
         let path = dir.join(Self::FILE);
         let bytes = std::fs::read(&path).map_err(|e| crate::io::IoError::new("cannot read", &path, e))?;
-        serde_json::from_slice(&bytes).map_err(|e| DetectError::Manifest {
-            path,
+        let manifest: Self = serde_json::from_slice(&bytes).map_err(|e| DetectError::Manifest {
+            path: path.clone(),
             what: e.to_string(),
-        })
+        })?;
+        // Every detector decodes with this IoU: one outside (0, 1] would let boxes of other
+        // objects vote (≤ 0) or silently switch voting off (> 1).
+        if let Some(v) = manifest.vote.as_ref().and_then(|v| v.iou) {
+            if !(v.is_finite() && v > 0.0 && v <= 1.0) {
+                return Err(DetectError::Manifest {
+                    path,
+                    what: format!("vote.iou must be in (0, 1], got {v}"),
+                });
+            }
+        }
+        Ok(manifest)
     }
 
     /// Writes `dir/manifest.json` atomically.
@@ -290,6 +301,32 @@ mod tests {
             matches!(e, DetectError::Weights { .. }) && e.to_string().contains("w.safetensors"),
             "{e}"
         );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_vote_iou_outside_the_unit_interval_is_a_manifest_error() {
+        let dir = std::env::temp_dir().join(format!("mlod-manifest-vote-{}", std::process::id()));
+        let vote = |iou: f64| Manifest {
+            vote: Some(VoteTuning {
+                iou: Some(iou),
+                command: "test".into(),
+                validation: BTreeMap::new(),
+            }),
+            ..Default::default()
+        };
+        vote(0.5).save(&dir).unwrap();
+        assert_eq!(Manifest::load(&dir).unwrap().vote.and_then(|v| v.iou), Some(0.5));
+        for bad in [0.0, -0.3, 1.5] {
+            vote(bad).save(&dir).unwrap();
+            let e = Manifest::load(&dir).unwrap_err();
+            assert!(
+                matches!(e, DetectError::Manifest { .. })
+                    && e.to_string().contains("vote.iou")
+                    && e.to_string().contains("manifest.json"),
+                "{bad}: {e}"
+            );
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
