@@ -274,13 +274,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
         validation_only: true,
         ..Default::default()
     };
-    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
-    if tokens.is_empty() {
-        anyhow::bail!(
-            "{}: no validation samples (every 10th scene)",
-            a.dataset.display()
-        );
-    }
+    let tokens = crate::evaluated_tokens(&dataset, &a.dataset, &opts)?;
     let cases = if a.cases.is_empty() {
         Case::ALL.to_vec()
     } else {

@@ -675,6 +675,23 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// The samples `opts` evaluates; an error naming the dataset when it asks for the validation
+/// scenes and there are none.
+fn evaluated_tokens(
+    dataset: &mlod::lyft::Dataset,
+    path: &std::path::Path,
+    opts: &mlod::eval::EvalOptions,
+) -> Result<Vec<String>> {
+    let tokens = mlod::eval::sample_tokens(dataset, opts);
+    if opts.validation_only && tokens.is_empty() {
+        bail!(
+            "{}: no validation samples (the validation split is every 10th scene)",
+            path.display()
+        );
+    }
+    Ok(tokens)
+}
+
 /// Runs a shipped detector over `tokens` (samples in parallel): its detections per sample.
 fn detect_case(
     dataset: &mlod::lyft::Dataset,
@@ -731,13 +748,7 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         }),
         ..Default::default()
     };
-    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
-    if args.validation && tokens.is_empty() {
-        bail!(
-            "{}: no validation samples (the validation split is every 10th scene)",
-            args.dataset.display()
-        );
-    }
+    let tokens = evaluated_tokens(&dataset, &args.dataset, &opts)?;
     let models = args.run.models_dir();
     let params = args.run.fuse_params()?;
     let cases = if args.cases.is_empty() {
@@ -755,15 +766,13 @@ fn table1_cmd(args: Table1Args) -> Result<()> {
         let mut report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
         if args.attribution {
             let att_opts = mlod::eval::EvalOptions {
-                samples: args.samples,
-                validation_only: args.validation,
                 per_box: Some(mlod::eval::MatchRule {
                     iou_threshold: 0.5,
                     kind: mlod::geometry::IouKind::ThreeD,
                     max_range: 30.0,
                 }),
                 attribution: true,
-                ..Default::default()
+                ..opts.clone()
             };
             let att = mlod::eval::evaluate_detections(&dataset, &dets, &att_opts)?.attribution;
             attributions.push((
@@ -905,13 +914,7 @@ fn eval_cmd(args: EvalArgs) -> Result<()> {
         });
         opts.attribution = args.attribution;
     }
-    let tokens = mlod::eval::sample_tokens(&dataset, &opts);
-    if args.validation && tokens.is_empty() {
-        bail!(
-            "{}: no validation samples (the validation split is every 10th scene)",
-            args.dataset.display()
-        );
-    }
+    let tokens = evaluated_tokens(&dataset, &args.dataset, &opts)?;
     let Some(pred_path) = &args.pred else {
         let case = args.case.context("give --pred FILE or --case CASE")?;
         let params = args.run.fuse_params()?;

@@ -192,7 +192,7 @@ impl Stage1Model {
         let manifest = Manifest::load(dir)?;
         let entry = manifest.entry(dir, case)?;
         let mut model = Self::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
-        if let Some(v) = manifest.vote.as_ref().and_then(|v| v.iou) {
+        if let Some(v) = manifest.vote_iou() {
             model.config.vote_iou = Some(v);
         }
         Ok(model)
@@ -395,7 +395,7 @@ impl ResultFusion {
     /// Loads the three shipped single-LiDAR models and their temperatures.
     pub fn load_shipped(dir: &Path) -> Result<Self, DetectError> {
         let manifest = Manifest::load(dir)?;
-        let vote_iou = manifest.vote.as_ref().and_then(|v| v.iou);
+        let vote_iou = manifest.vote_iou();
         let mut generators = Vec::new();
         for case in [Case::Top, Case::Left, Case::Right] {
             let entry = manifest.entry(dir, case)?;
@@ -486,11 +486,7 @@ pub enum Voting {
 impl Voting {
     /// Voting at `v`, which must be an IoU in (0, 1].
     pub fn iou(v: f64) -> Result<Self, String> {
-        if v.is_finite() && v > 0.0 && v <= 1.0 {
-            Ok(Self::Iou(v))
-        } else {
-            Err(format!("a vote IoU must be in (0, 1], got {v}"))
-        }
+        crate::geometry::nms::check_vote_iou(v).map(Self::Iou)
     }
 }
 

@@ -206,17 +206,19 @@ impl Manifest {
             path: path.clone(),
             what: e.to_string(),
         })?;
-        // Every detector decodes with this IoU: one outside (0, 1] would let boxes of other
-        // objects vote (≤ 0) or silently switch voting off (> 1).
-        if let Some(v) = manifest.vote.as_ref().and_then(|v| v.iou) {
-            if !(v.is_finite() && v > 0.0 && v <= 1.0) {
-                return Err(DetectError::Manifest {
-                    path,
-                    what: format!("vote.iou must be in (0, 1], got {v}"),
-                });
-            }
+        // Every detector decodes with this IoU.
+        if let Some(v) = manifest.vote_iou() {
+            crate::geometry::nms::check_vote_iou(v).map_err(|e| DetectError::Manifest {
+                path,
+                what: format!("vote.iou: {e}"),
+            })?;
         }
         Ok(manifest)
+    }
+
+    /// The box-voting IoU the shipped detectors decode with (`None`: plain NMS).
+    pub fn vote_iou(&self) -> Option<f64> {
+        self.vote.as_ref().and_then(|v| v.iou)
     }
 
     /// Writes `dir/manifest.json` atomically.

@@ -33,6 +33,16 @@ pub fn nms(boxes: &[Box3d], scores: &[f32], iou_threshold: f64, kind: IouKind) -
     kept
 }
 
+/// `v` if it is a usable vote IoU, in (0, 1]: at 0 or below boxes of other objects would vote,
+/// above 1 nothing but the kept box would.
+pub fn check_vote_iou(v: f64) -> Result<f64, String> {
+    if v.is_finite() && v > 0.0 && v <= 1.0 {
+        Ok(v)
+    } else {
+        Err(format!("a vote IoU must be in (0, 1], got {v}"))
+    }
+}
+
 /// Box voting ("weighted NMS"): each kept box replaced by the score-weighted mean of every
 /// candidate that overlaps it by at least `vote_iou` (itself included). Centre and size are
 /// averaged; the heading is the kept box's plus the weighted mean of the others' headings
