@@ -8,6 +8,7 @@
 pub mod color;
 pub mod detect;
 pub mod eval;
+pub mod export;
 pub mod geometry;
 pub mod io;
 pub mod lyft;

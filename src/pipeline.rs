@@ -18,8 +18,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::Pose;
-use crate::lyft::{Frame, LidarChannel};
-use crate::uncertainty::propagate::PARALLEL_THRESHOLD;
+use crate::lyft::{Frame, LidarChannel, LidarScan};
+use crate::uncertainty::propagate::{covariance_cloud, PARALLEL_THRESHOLD};
 use crate::uncertainty::{ExtrinsicNoise, Linearization, Perturbation, Prior, TraceKernel, UncertaintyError};
 
 /// Everything that decides how a frame is fused; serialisable so a session can replay it.
@@ -127,31 +127,35 @@ pub enum PipelineError {
     BadLidar { channel: LidarChannel, what: String },
 }
 
-/// Fuses a frame: all points in the base frame via the (perturbed) extrinsics, with tr(Ξ).
-pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineError> {
-    let prior_alpha = params.effective_prior_alpha();
-    let scaled = params.prior.scaled(prior_alpha)?;
-    // The primary LiDAR's extrinsic is exact (it is the base frame): only Z remains.
+/// One LiDAR of a frame as `fuse` sees it: its points' place in the fused arrays, its nominal,
+/// sampled and applied extrinsic, and the kernel of its points' Ξ.
+struct LidarSetup<'a> {
+    index: usize,
+    scan: &'a LidarScan,
+    range: Range<usize>,
+    nominal: Pose,
+    noise: ExtrinsicNoise,
+    applied: Pose,
+    r: Matrix3<f64>,
+    t: nalgebra::Vector3<f64>,
+    kernel: TraceKernel,
+}
+
+/// The per-LiDAR setup shared by [`fuse`] and [`fused_covariance`]: the perturbation, applied
+/// extrinsic, prior (the primary LiDAR's extrinsic is exact, it is the base frame: only Z
+/// remains; the others get Θ at the prior's α) and linearisation of every LiDAR, in frame order.
+fn lidar_setups<'a>(frame: &'a Frame, params: &FuseParams) -> Result<Vec<LidarSetup<'a>>, PipelineError> {
+    let scaled = params.prior.scaled(params.effective_prior_alpha())?;
     let primary_prior = Prior {
         p: Matrix3::zeros(),
         phi: Matrix3::zeros(),
         z: scaled.z,
     };
-    let total: usize = frame.lidars().map(|l| l.points.len()).sum();
-    let mut out = FusedCloud {
-        x: vec![0.0; total],
-        y: vec![0.0; total],
-        z: vec![0.0; total],
-        intensity: Vec::with_capacity(total),
-        source: Vec::with_capacity(total),
-        trace: vec![0.0; total],
-        lidars: Vec::new(),
-    };
     let mut start = 0;
+    let mut out = Vec::new();
     for (index, scan) in frame.lidars().enumerate() {
         let channel = scan.info.channel;
-        let pts = &scan.points;
-        if !pts.is_consistent() {
+        if !scan.points.is_consistent() {
             return Err(PipelineError::BadLidar {
                 channel,
                 what: "point arrays have different lengths".into(),
@@ -164,11 +168,43 @@ pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineEr
         let t = applied.translation.vector;
         let prior = if index == 0 { &primary_prior } else { &scaled };
         let kernel = TraceKernel::new(&r, &t, prior, params.linearization);
-        let range = start..start + pts.len();
+        let range = start..start + scan.points.len();
+        start = range.end;
+        out.push(LidarSetup {
+            index,
+            scan,
+            range,
+            nominal,
+            noise,
+            applied,
+            r,
+            t,
+            kernel,
+        });
+    }
+    Ok(out)
+}
+
+/// Fuses a frame: all points in the base frame via the (perturbed) extrinsics, with tr(Ξ).
+pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineError> {
+    let setups = lidar_setups(frame, params)?;
+    let total = setups.last().map_or(0, |s| s.range.end);
+    let mut out = FusedCloud {
+        x: vec![0.0; total],
+        y: vec![0.0; total],
+        z: vec![0.0; total],
+        intensity: Vec::with_capacity(total),
+        source: Vec::with_capacity(total),
+        trace: vec![0.0; total],
+        lidars: Vec::new(),
+    };
+    for s in setups {
+        let pts = &s.scan.points;
+        let range = s.range.clone();
         transform_and_trace(
-            &r,
-            &t,
-            &kernel,
+            &s.r,
+            &s.t,
+            &s.kernel,
             (&pts.x, &pts.y, &pts.z),
             (
                 &mut out.x[range.clone()],
@@ -178,15 +214,28 @@ pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineEr
             ),
         );
         out.intensity.extend_from_slice(&pts.intensity);
-        out.source.extend(std::iter::repeat_n(index as u8, pts.len()));
+        out.source.extend(std::iter::repeat_n(s.index as u8, pts.len()));
         out.lidars.push(FusedLidar {
-            channel,
-            range: range.clone(),
-            nominal,
-            noise,
-            applied,
+            channel: s.scan.info.channel,
+            range,
+            nominal: s.nominal,
+            noise: s.noise,
+            applied: s.applied,
         });
-        start = range.end;
+    }
+    Ok(out)
+}
+
+/// Ξ of every fused point (paper eq. 8; six entries xx, yy, zz, xy, xz, yz in the base frame,
+/// m²), in the order of [`fuse`]'s arrays: the same per-LiDAR setup as `fuse`, so the trace of
+/// each matrix is `fuse(frame, params).trace`.
+pub fn fused_covariance(frame: &Frame, params: &FuseParams) -> Result<Vec<[f32; 6]>, PipelineError> {
+    let setups = lidar_setups(frame, params)?;
+    let total = setups.last().map_or(0, |s| s.range.end);
+    let mut out = vec![[0.0f32; 6]; total];
+    for s in setups {
+        let pts = &s.scan.points;
+        covariance_cloud(&s.kernel, &pts.x, &pts.y, &pts.z, &mut out[s.range.clone()]);
     }
     Ok(out)
 }
@@ -266,5 +315,73 @@ pub fn box_stats(cloud: &FusedCloud, b: &crate::geometry::Box3d) -> BoxStats {
         points: count,
         mean_trace: (sum / count as f64) as f32,
         uncertain_fraction: unc as f32 / count as f32,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{pose_from_rt, rpy_to_matrix};
+    use crate::lyft::{LidarScan, PointCloud};
+    use crate::uncertainty::Perturbation;
+    use nalgebra::Vector3;
+
+    fn scan(channel: LidarChannel, rpy: [f64; 3], t: [f64; 3], n: usize) -> LidarScan {
+        let mut c = PointCloud::with_capacity(n);
+        for i in 0..n {
+            let a = i as f32 * 0.37;
+            let r = 2.0 + (i % 97) as f32;
+            c.push(a.cos() * r, a.sin() * r, (i % 9) as f32 * 0.3 - 1.2, 1.0, 0.0);
+        }
+        let pose = pose_from_rt(&rpy_to_matrix(rpy[0], rpy[1], rpy[2]), &Vector3::from(t));
+        LidarScan::in_memory(channel, pose, c)
+    }
+
+    #[test]
+    fn fused_covariance_traces_match_fuse() {
+        let frame = Frame::in_memory(
+            "s",
+            scan(LidarChannel::Top, [0.0; 3], [0.0; 3], 3000),
+            vec![
+                scan(
+                    LidarChannel::FrontLeft,
+                    [3.1, -0.03, -1.5],
+                    [-2.23, -0.97, -1.34],
+                    2000,
+                ),
+                // Above the parallel threshold, so both paths are covered.
+                scan(
+                    LidarChannel::FrontRight,
+                    [3.13, 0.005, 1.6],
+                    [-2.28, 0.92, -1.33],
+                    20_000,
+                ),
+            ],
+            Vec::new(),
+        );
+        for (alpha, prior_alpha, linearization) in [
+            (0.04, None, Linearization::Separate),
+            (0.1, Some(0.02), Linearization::Se3Left),
+            (0.0, None, Linearization::Separate),
+        ] {
+            let params = FuseParams {
+                perturbation: Perturbation::new(alpha, 3).unwrap(),
+                prior_alpha,
+                linearization,
+                ..Default::default()
+            };
+            let cloud = fuse(&frame, &params).unwrap();
+            let cov = fused_covariance(&frame, &params).unwrap();
+            assert_eq!(cov.len(), cloud.len());
+            for (i, (c, &tr)) in cov.iter().zip(&cloud.trace).enumerate() {
+                let sum = c[0] + c[1] + c[2];
+                assert!(
+                    (sum - tr).abs() <= 1e-5 * tr.abs(),
+                    "alpha {alpha} {linearization}: point {i} tr {tr} vs {sum}"
+                );
+                // A covariance: non-negative diagonal.
+                assert!(c[0] >= 0.0 && c[1] >= 0.0 && c[2] >= 0.0, "point {i}: {c:?}");
+            }
+        }
     }
 }
