@@ -254,6 +254,30 @@ fn auto_run_follows_the_perturbation() {
 }
 
 #[test]
+fn export_fused_cloud_writes_the_cloud_on_screen() {
+    let mut h = harness(Some(session_at(0.04, ColorMode::Trace)));
+    h.run_steps(2);
+    let dir = std::env::temp_dir().join(format!("mlod-gui-export-{}", std::process::id()));
+    let path = dir.join("view.ply");
+    let n = h.state().export_cloud(&path).expect("export");
+    let cloud = h.state().fused().unwrap();
+    assert_eq!(n, cloud.len());
+    let back = mlod::export::read_file(&path).unwrap();
+    assert_eq!(back.x, cloud.x);
+    assert_eq!(back.trace, cloud.trace);
+    assert!(
+        back.comments.iter().any(|c| c.contains("alpha 0.04")),
+        "{:?}",
+        back.comments
+    );
+    // No extension, no format: an error naming the file, and nothing written.
+    let e = h.state().export_cloud(&dir.join("view")).unwrap_err();
+    assert!(e.contains("view"), "{e}");
+    assert!(!dir.join("view").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn missing_weights_are_an_error_and_keep_the_cloud() {
     let mut h = harness_with(None, Some("/nonexistent/models".into()));
     h.state_mut().run_detector();

@@ -20,7 +20,7 @@
 use candle_core::Tensor;
 use rayon::prelude::*;
 
-use super::model::ModelConfig;
+use super::config::ModelConfig;
 use super::net::{branch_prefix, HeadOutput};
 use super::voxel::Bev;
 use super::DetectError;

@@ -20,10 +20,13 @@
 //!   the temperature calibration of Result Fusion.
 
 pub mod anchors;
+pub mod calibrate;
+pub mod config;
 pub mod gt_sampling;
 pub mod infer;
 pub mod model;
 pub mod net;
+pub mod optim;
 pub mod train;
 pub mod voxel;
 pub mod weights;

@@ -25,20 +25,22 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::anchors::{assign, raw_box, RawBox, Targets};
+pub use super::calibrate::{calibrate_temperatures, fit_temperature, label_detections};
 use super::gt_sampling::{paste, GtDatabase, GtObject, Inside};
 use super::model::{branch_points, ModelConfig, Stage1Model};
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
+pub use super::optim::AdamW;
 use super::voxel::{voxelize, Bev, PointsRef};
 use super::weights::{file_name_of, folder_of, read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
 use super::{Case, DetectError};
-use crate::geometry::{iou_3d, Box3d};
+pub use crate::lyft::train_validation_split as split;
 use crate::lyft::{Dataset, Frame};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
@@ -230,102 +232,6 @@ pub fn compute_loss_with(
     })
 }
 
-/// AdamW (decoupled weight decay) whose moments can be saved and restored.
-#[derive(Debug)]
-pub struct AdamW {
-    pub params: Vec<(String, Var)>,
-    pub m: Vec<Tensor>,
-    pub v: Vec<Tensor>,
-    pub step: u64,
-    pub beta1: f64,
-    pub beta2: f64,
-    pub eps: f64,
-    pub weight_decay: f64,
-}
-
-impl AdamW {
-    /// The optimiser of a model's trainable variables (BatchNorm running statistics excluded).
-    pub fn new(model: &Stage1Model, weight_decay: f64) -> Result<Self, DetectError> {
-        let varmap = model
-            .varmap
-            .as_ref()
-            .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
-        let data = varmap
-            .data()
-            .lock()
-            .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
-        let mut params: Vec<(String, Var)> = data
-            .iter()
-            .filter(|(k, _)| !k.contains("running"))
-            .map(|(k, v)| (k.clone(), v.clone()))
-            .collect();
-        params.sort_by(|a, b| a.0.cmp(&b.0));
-        let zeros = |p: &Var| p.as_tensor().zeros_like();
-        let m = params
-            .iter()
-            .map(|(_, p)| zeros(p))
-            .collect::<candle_core::Result<Vec<_>>>()?;
-        let v = params
-            .iter()
-            .map(|(_, p)| zeros(p))
-            .collect::<candle_core::Result<Vec<_>>>()?;
-        Ok(Self {
-            params,
-            m,
-            v,
-            step: 0,
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-            weight_decay,
-        })
-    }
-
-    /// One update with learning rate `lr`; gradients are scaled so their global norm is at most
-    /// `clip`. Returns the gradient norm before clipping.
-    pub fn update(
-        &mut self,
-        grads: &candle_core::backprop::GradStore,
-        lr: f64,
-        clip: f64,
-    ) -> Result<f64, DetectError> {
-        let mut sq = 0f64;
-        for (_, p) in &self.params {
-            if let Some(g) = grads.get(p.as_tensor()) {
-                sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
-            }
-        }
-        let norm = sq.sqrt();
-        let scale = if norm.is_finite() && norm > clip {
-            clip / norm
-        } else {
-            1.0
-        };
-        if !norm.is_finite() {
-            return Err(DetectError::BadParameter(format!("gradient norm is {norm}")));
-        }
-        self.step += 1;
-        let t = self.step as i32;
-        let bc1 = 1.0 - self.beta1.powi(t);
-        let bc2 = 1.0 - self.beta2.powi(t);
-        for (k, (_, p)) in self.params.iter().enumerate() {
-            let Some(g) = grads.get(p.as_tensor()) else {
-                continue;
-            };
-            // Detached: the moments must not keep this step's graph alive into the next step.
-            let g = g.detach().affine(scale, 0.0)?;
-            let m = ((&self.m[k] * self.beta1)? + (&g * (1.0 - self.beta1))?)?;
-            let v = ((&self.v[k] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?;
-            let upd = ((&m / bc1)? / ((&v / bc2)?.sqrt()? + self.eps)?)?;
-            let next = ((p.as_tensor() * (1.0 - lr * self.weight_decay))? - (upd * lr)?)?;
-            p.set(&next.detach())?;
-            self.m[k] = m.detach();
-            self.v[k] = v.detach();
-        }
-        Ok(norm)
-    }
-}
-
 /// Training settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -429,27 +335,6 @@ impl StepRecord {
             self.elapsed_s
         )
     }
-}
-
-/// The train/validation split of a dataset by scene (see the module doc).
-pub fn split(dataset: &Dataset) -> (Vec<String>, Vec<String>) {
-    let mut scenes: Vec<String> = Vec::new();
-    let (mut train, mut val) = (Vec::new(), Vec::new());
-    for s in dataset.samples() {
-        let idx = match scenes.iter().position(|x| *x == s.scene_token) {
-            Some(i) => i,
-            None => {
-                scenes.push(s.scene_token.clone());
-                scenes.len() - 1
-            }
-        };
-        if idx % 10 == 9 {
-            val.push(s.sample_token);
-        } else {
-            train.push(s.sample_token);
-        }
-    }
-    (train, val)
 }
 
 /// The database objects pasted into the frame of a step (from ChaCha8(seed, stream 2³³ + step)).
@@ -782,139 +667,10 @@ pub fn train_stage1(
     })
 }
 
-/// Fits the temperature T of sigmoid(logit / T) minimising the NLL of TP (1) / FP (0) labels, by
-/// golden-section search on ln T ∈ [−4, 4] (the NLL is unimodal in T for these data).
-pub fn fit_temperature(logits: &[f32], labels: &[bool]) -> f64 {
-    let nll = |t: f64| -> f64 {
-        logits
-            .iter()
-            .zip(labels)
-            .map(|(&z, &y)| {
-                let x = z as f64 / t;
-                // −ln σ(x) = softplus(−x), −ln(1 − σ(x)) = softplus(x).
-                let sp = |v: f64| v.max(0.0) + (-v.abs()).exp().ln_1p();
-                if y {
-                    sp(-x)
-                } else {
-                    sp(x)
-                }
-            })
-            .sum()
-    };
-    if logits.is_empty() {
-        return 1.0;
-    }
-    let (mut a, mut b) = (-4f64, 4f64);
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-    let (mut fc, mut fd) = (nll(c.exp()), nll(d.exp()));
-    for _ in 0..80 {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - g * (b - a);
-            fc = nll(c.exp());
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + g * (b - a);
-            fd = nll(d.exp());
-        }
-    }
-    (0.5 * (a + b)).exp()
-}
-
-/// TP / FP labels of detections against ground-truth boxes of their class: greedy by score, a
-/// detection is a TP when its 3D IoU with a not yet matched box is at least `iou`.
-pub fn label_detections(dets: &[(super::Detection, f32)], gts: &[Box3d], iou: f64) -> Vec<bool> {
-    let mut used = vec![false; gts.len()];
-    let mut order: Vec<usize> = (0..dets.len()).collect();
-    order.sort_by(|&a, &b| dets[b].0.score.total_cmp(&dets[a].0.score).then(a.cmp(&b)));
-    let mut out = vec![false; dets.len()];
-    for i in order {
-        let mut best: Option<(usize, f64)> = None;
-        for (j, g) in gts.iter().enumerate() {
-            if used[j] {
-                continue;
-            }
-            let v = iou_3d(&dets[i].0.box3d, g);
-            if v >= iou && best.is_none_or(|(_, b)| v > b) {
-                best = Some((j, v));
-            }
-        }
-        if let Some((j, _)) = best {
-            used[j] = true;
-            out[i] = true;
-        }
-    }
-    out
-}
-
-/// Fits Result Fusion's temperature for each single-LiDAR generator on the validation split of
-/// `dataset` (at most `max_samples` samples) and writes them into the models folder's manifest.
-pub fn calibrate_temperatures(
-    dataset_dir: &Path,
-    models_dir: &Path,
-    max_samples: usize,
-    iou: f64,
-    command: &str,
-    mut on_sample: impl FnMut(Case, usize, usize),
-) -> Result<BTreeMap<Case, f64>, DetectError> {
-    let dataset = Dataset::open(dataset_dir)?;
-    let (_, mut val) = split(&dataset);
-    if max_samples > 0 {
-        val.truncate(max_samples);
-    }
-    let mut manifest = Manifest::load(models_dir)?;
-    let mut temps = BTreeMap::new();
-    for case in [Case::Top, Case::Left, Case::Right] {
-        let model = Stage1Model::load_shipped(models_dir, case)?;
-        let (mut logits, mut labels) = (Vec::new(), Vec::new());
-        for (k, token) in val.iter().enumerate() {
-            let frame = dataset.frame(token)?;
-            let cloud = fuse(&frame, &FuseParams::default())?;
-            if case.channel().is_some_and(|ch| frame.lidar(ch).is_none()) {
-                continue;
-            }
-            let dets = model.detect_cloud_logits(&cloud)?;
-            let gts: Vec<Box3d> = frame
-                .boxes
-                .iter()
-                .filter(|b| b.category == model.config.anchor.category)
-                .map(|b| b.box3d)
-                .collect();
-            labels.extend(label_detections(&dets, &gts, iou));
-            logits.extend(dets.iter().map(|d| d.1));
-            on_sample(case, k + 1, val.len());
-        }
-        temps.insert(case, fit_temperature(&logits, &labels));
-    }
-    manifest.temperatures = temps.clone();
-    manifest.temperature_command = command.to_string();
-    manifest.save(models_dir)?;
-    Ok(temps)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn temperature_fit_recovers_a_known_temperature() {
-        // Labels drawn as Bernoulli(σ(z / 3)) ⇒ the fitted T is near 3.
-        let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let (mut z, mut y) = (Vec::new(), Vec::new());
-        for _ in 0..20000 {
-            let l: f32 = rng.random_range(-12.0..12.0);
-            let p = 1.0 / (1.0 + (-(l as f64) / 3.0).exp());
-            z.push(l);
-            y.push(rng.random::<f64>() < p);
-        }
-        let t = fit_temperature(&z, &y);
-        assert!((t - 3.0).abs() < 0.2, "{t}");
-    }
+    use crate::geometry::Box3d;
 
     #[test]
     fn augmentation_moves_points_and_boxes_together() {

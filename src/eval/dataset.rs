@@ -353,7 +353,7 @@ fn to_base(b: &LyftBox, global_to_base: &Pose) -> Box3d {
 
 fn evaluated_tokens(dataset: &Dataset, opts: &EvalOptions) -> Vec<String> {
     let mut all: Vec<String> = if opts.validation_only {
-        crate::detect::train::split(dataset).1
+        crate::lyft::train_validation_split(dataset).1
     } else {
         dataset.sample_tokens().iter().map(|s| (*s).to_owned()).collect()
     };

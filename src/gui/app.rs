@@ -8,19 +8,23 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use eframe::egui;
-use egui::{Color32, RichText};
 
 use super::jobs::{DetectRequest, JobResult, Jobs};
-use super::panels;
-use super::viewport::{self, box_lines, grid_lines, Camera, Projection, SceneHandle, View, Viewport};
+use super::overlay::{self, OverlayInput};
+use super::panels::{self, Panels};
+use super::state::{camera_from_pose, pose_from_camera};
+use super::state::{
+    Action, DetectionCounts, DetectionView, Loaded, RawDetection, Shell, Toast, FALSE_POSITIVE_COLOR,
+    GT_COLOR, PROPOSAL_COLOR,
+};
+use super::viewport::{self, box_lines, grid_lines, Camera, SceneHandle, View, Viewport};
 use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
 use crate::detect::weights::default_models_dir;
-use crate::detect::{Case, Detection, Detector};
-use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
-use crate::geometry::IouKind;
-use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
-use crate::pipeline::{box_stats, fuse, BoxStats, FusedCloud};
-use crate::session::{CameraPose, Session};
+use crate::detect::{Case, Detector};
+use crate::eval::PredOutcome;
+use crate::lyft::{Frame, LidarChannel};
+use crate::pipeline::{fuse, BoxStats, FusedCloud};
+use crate::session::Session;
 use crate::uncertainty::UNCERTAIN_TRACE;
 
 /// How the app starts.
@@ -39,90 +43,32 @@ pub struct AppOptions {
     pub models: Option<PathBuf>,
 }
 
-/// A message shown at the bottom right for a few seconds.
-pub struct Toast {
-    pub text: String,
-    pub error: bool,
-    pub until: f64,
-}
-
-/// Ground-truth box colour (paper: green).
-pub const GT_COLOR: [u8; 4] = [70, 230, 110, 255];
-/// Stage-1 proposal colour (paper: blue); a true positive.
-pub const PROPOSAL_COLOR: [u8; 4] = [70, 150, 255, 255];
-/// A proposal that matches no ground truth (false positive): a greyed blue.
-pub const FALSE_POSITIVE_COLOR: [u8; 4] = [150, 160, 200, 255];
-
-/// The last stage-1 detection run on the sample on screen, matched against its ground truth.
-#[derive(Debug, Clone)]
-pub struct DetectionView {
-    pub case: Case,
-    pub token: String,
-    /// The fuse generation it was computed at; older than the app's: stale (α changed since).
-    pub generation: u64,
-    /// Highest score first.
-    pub detections: Vec<Detection>,
-    /// Per detection: TP (with its GT and IoU), FP or ignored, at the session's match IoU.
-    pub outcomes: Vec<PredOutcome>,
-    /// Per ground-truth box of the frame: matched or missed; ignored when the detector does not
-    /// output its category.
-    pub gt_outcomes: Vec<GtOutcome>,
-    /// The categories the detector outputs.
-    pub categories: Vec<String>,
-    pub millis: f64,
-}
-
-/// Counts shown in the Detection panel (drawn proposals only, i.e. score ≥ min score).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct DetectionCounts {
-    pub shown: usize,
-    pub true_positives: usize,
-    pub false_positives: usize,
-    /// Ground-truth boxes of the detector's categories, and how many of them no drawn proposal
-    /// matched.
-    pub ground_truth: usize,
-    pub missed: usize,
-}
 const HISTOGRAM_BINS: usize = 64;
 const RECENT_KEY: &str = "mlod_recent_datasets";
 
 /// The application.
 pub struct MlodApp {
-    pub(crate) session: Session,
-    pub(crate) view: Viewport,
-    pub(crate) scene: SceneHandle,
+    session: Session,
+    view: Viewport,
+    scene: SceneHandle,
     jobs: Jobs,
-    pub(crate) dataset: Option<Arc<Dataset>>,
-    pub(crate) samples: Vec<SampleSummary>,
-    pub(crate) frame: Option<Arc<Frame>>,
-    pub(crate) fused: Option<FusedCloud>,
+    loaded: Loaded,
+    shell: Shell,
     /// Fused-cloud index of each point handed to the scene (hidden LiDARs are left out).
     scene_index: Vec<u32>,
-    pub(crate) histogram: Vec<u32>,
-    pub(crate) uncertain_fraction: f64,
-    pub(crate) fuse_ms: f64,
-    pub(crate) frame_ms: f64,
     wanted_token: Option<String>,
     loading_dataset: Option<PathBuf>,
     /// Heading of the ego car's +x in the base frame (LIDAR_TOP is mounted turned ~180°).
     ego_heading: f32,
     camera_from_session: bool,
-    pub(crate) toasts: Vec<Toast>,
-    pub(crate) recent: Vec<PathBuf>,
-    pub(crate) show_help: bool,
     needs_fuse: bool,
     needs_color: bool,
-    pub(crate) hovered_box: Option<(usize, BoxStats)>,
-    pub(crate) show_timings: bool,
+    hovered_box: Option<(usize, BoxStats)>,
     measure: Option<(usize, Vec<Instant>)>,
     viewport_rect: egui::Rect,
-    /// Bumped on every re-fuse: a detection made at an older generation is stale.
-    fuse_generation: u64,
     detectors: BTreeMap<Case, Arc<dyn Detector>>,
-    pub(crate) detection: Option<DetectionView>,
-    detect_in_flight: bool,
     detect_again: bool,
-    pub(crate) hovered_detection: Option<usize>,
+    hovered_detection: Option<usize>,
     models_dir: PathBuf,
 }
 
@@ -137,7 +83,7 @@ impl MlodApp {
             .and_then(|s| eframe::get_value::<Vec<PathBuf>>(s, RECENT_KEY))
             .unwrap_or_default();
         let mut app = Self::headless(options, Some(cc.egui_ctx.clone()));
-        app.recent = recent;
+        app.shell.recent = recent;
         app
     }
 
@@ -156,32 +102,22 @@ impl MlodApp {
             view,
             scene: SceneHandle::new(),
             jobs: Jobs::new(ctx, options.synchronous),
-            dataset: None,
-            samples: Vec::new(),
-            frame: None,
-            fused: None,
             scene_index: Vec::new(),
-            histogram: Vec::new(),
-            uncertain_fraction: 0.0,
-            fuse_ms: 0.0,
-            frame_ms: 0.0,
             wanted_token: session.sample_token.clone(),
             loading_dataset: None,
             ego_heading: 0.0,
             camera_from_session,
-            toasts: Vec::new(),
-            recent: Vec::new(),
-            show_help: false,
             needs_fuse: false,
             needs_color: false,
             hovered_box: None,
-            show_timings: !options.synchronous,
+            loaded: Loaded::default(),
+            shell: Shell {
+                show_timings: !options.synchronous,
+                ..Default::default()
+            },
             viewport_rect: egui::Rect::NOTHING,
             measure: options.measure_frames.map(|n| (n, Vec::with_capacity(n + 1))),
-            fuse_generation: 0,
             detectors: BTreeMap::new(),
-            detection: None,
-            detect_in_flight: false,
             detect_again: false,
             hovered_detection: None,
             models_dir: options
@@ -205,33 +141,30 @@ impl MlodApp {
 
     /// Asks for a sample; the current frame stays until it has loaded.
     pub fn select_sample(&mut self, token: &str) {
-        let Some(ds) = self.dataset.clone() else { return };
+        let Some(ds) = self.loaded.dataset.clone() else {
+            return;
+        };
         self.wanted_token = Some(token.to_string());
         self.jobs.load_frame(ds, token.to_string());
     }
 
     /// Steps through the samples in scene order.
     pub fn step_sample(&mut self, delta: i64) {
-        let Some(current) = self.frame.as_ref().map(|f| f.sample_token.clone()) else {
+        let Some(current) = self.loaded.frame.as_ref().map(|f| f.sample_token.clone()) else {
             return;
         };
-        let Some(i) = self.samples.iter().position(|s| s.sample_token == current) else {
+        let Some(i) = self.loaded.samples.iter().position(|s| s.sample_token == current) else {
             return;
         };
-        let j = (i as i64 + delta).clamp(0, self.samples.len() as i64 - 1) as usize;
+        let j = (i as i64 + delta).clamp(0, self.loaded.samples.len() as i64 - 1) as usize;
         if j != i {
-            let token = self.samples[j].sample_token.clone();
+            let token = self.loaded.samples[j].sample_token.clone();
             self.select_sample(&token);
         }
     }
 
-    pub(crate) fn toast(&mut self, now: f64, text: impl Into<String>, error: bool) {
-        let text = text.into();
-        self.toasts.push(Toast {
-            text,
-            error,
-            until: now + if error { 8.0 } else { 3.0 },
-        });
+    fn toast(&mut self, now: f64, text: impl Into<String>, error: bool) {
+        self.shell.toast(now, text, error);
     }
 
     /// Applies finished jobs. Errors keep the last good state and become toasts.
@@ -253,7 +186,7 @@ impl MlodApp {
         if self.needs_color {
             self.recolor();
         }
-        if !self.camera_from_session && self.fused.is_some() {
+        if !self.camera_from_session && self.loaded.fused.is_some() {
             self.set_preset(View::Overview);
             self.camera_from_session = true;
         }
@@ -274,12 +207,10 @@ impl MlodApp {
                                 .clone()
                                 .filter(|t| samples.iter().any(|s| &s.sample_token == t));
                             let first = keep.or_else(|| samples.first().map(|s| s.sample_token.clone()));
-                            self.dataset = Some(ds);
-                            self.samples = samples;
+                            self.loaded.dataset = Some(ds);
+                            self.loaded.samples = samples;
                             self.session.dataset = path.clone();
-                            self.recent.retain(|p| p != &path);
-                            self.recent.insert(0, path.clone());
-                            self.recent.truncate(8);
+                            self.shell.remember(&path);
                             match first {
                                 Some(token) => self.select_sample(&token),
                                 None => self.toast(now, format!("{} has no samples", path.display()), true),
@@ -299,19 +230,19 @@ impl MlodApp {
                     match result {
                         Ok(frame) => {
                             for w in &frame.warnings {
-                                self.toasts.push(Toast {
+                                self.shell.toasts.push(Toast {
                                     text: w.clone(),
                                     error: false,
                                     until: now + 5.0,
                                 });
                             }
                             self.ego_heading = ego_heading(&frame);
-                            if self.detection.as_ref().is_some_and(|d| d.token != token) {
-                                self.detection = None;
+                            if self.loaded.detection.as_ref().is_some_and(|d| d.token != token) {
+                                self.loaded.detection = None;
                             }
                             self.session.sample_token = Some(token);
-                            self.frame = Some(frame);
-                            self.frame_ms = millis;
+                            self.loaded.frame = Some(frame);
+                            self.loaded.frame_ms = millis;
                             self.needs_fuse = true;
                         }
                         Err(e) => self.toast(now, format!("cannot load sample {token}: {e}"), true),
@@ -324,20 +255,26 @@ impl MlodApp {
                     result,
                     millis,
                 } => {
-                    self.detect_in_flight = false;
+                    self.loaded.detecting = false;
                     match result {
                         Ok(out) => {
-                            let on_screen = self.frame.as_ref().is_some_and(|f| f.sample_token == token);
+                            let on_screen = self
+                                .loaded
+                                .frame
+                                .as_ref()
+                                .is_some_and(|f| f.sample_token == token);
                             if on_screen {
-                                let categories = out.detector.categories();
-                                self.detection = Some(self.match_detections(
+                                let raw = RawDetection {
                                     case,
                                     token,
                                     generation,
-                                    out.detections,
-                                    categories,
+                                    detections: out.detections,
+                                    categories: out.detector.categories(),
                                     millis,
-                                ));
+                                };
+                                let frame = self.loaded.frame.as_deref();
+                                self.loaded.detection =
+                                    Some(DetectionView::matched(raw, frame, &self.session.detection));
                                 self.rebuild_lines();
                             }
                             self.detectors.insert(case, out.detector);
@@ -358,17 +295,19 @@ impl MlodApp {
     /// Runs the session's stage-1 detector on the sample on screen, in the background. A request
     /// while one is running is remembered and run once that one is back (latest state wins).
     pub fn run_detector(&mut self) {
-        let Some(frame) = self.frame.clone() else { return };
-        if self.detect_in_flight {
+        let Some(frame) = self.loaded.frame.clone() else {
+            return;
+        };
+        if self.loaded.detecting {
             self.detect_again = true;
             return;
         }
         let case = self.session.detection.case;
-        self.detect_in_flight = true;
+        self.loaded.detecting = true;
         self.jobs.detect(DetectRequest {
             frame,
             params: self.session.fuse.clone(),
-            generation: self.fuse_generation,
+            generation: self.loaded.fuse_generation,
             case,
             cached: self.detectors.get(&case).cloned(),
             models: self.models_dir.clone(),
@@ -377,115 +316,26 @@ impl MlodApp {
 
     /// Whether a detector run is in flight.
     pub fn is_detecting(&self) -> bool {
-        self.detect_in_flight
+        self.loaded.detecting
     }
 
     /// Whether the detection on screen was made before the last change of perturbation.
     pub fn detection_is_stale(&self) -> bool {
-        self.detection
-            .as_ref()
-            .is_some_and(|d| d.generation != self.fuse_generation || d.case != self.session.detection.case)
-    }
-
-    fn match_detections(
-        &self,
-        case: Case,
-        token: String,
-        generation: u64,
-        detections: Vec<Detection>,
-        categories: Vec<String>,
-        millis: f64,
-    ) -> DetectionView {
-        let gts: Vec<Detection> = self
-            .frame
-            .as_ref()
-            .map(|f| f.boxes.iter().map(|b| b.as_detection()).collect())
-            .unwrap_or_default();
-        let rule = MatchRule {
-            iou_threshold: self.session.detection.match_iou,
-            kind: IouKind::ThreeD,
-            max_range: f64::INFINITY,
-        };
-        // Match the operating point on screen: only the drawn proposals (score ≥ min score).
-        let min = self.session.detection.min_score;
-        let kept: Vec<usize> = (0..detections.len())
-            .filter(|&i| detections[i].score >= min)
-            .collect();
-        let shown: Vec<Detection> = kept.iter().map(|&i| detections[i].clone()).collect();
-        // Ground truth of classes the detector does not output is matched by nothing and ignored.
-        let known: Vec<usize> = (0..gts.len())
-            .filter(|&j| categories.contains(&gts[j].category))
-            .collect();
-        let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
-        let m = match_sample(&shown, &known_gts, &rule);
-        let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
-        for (k, o) in kept.iter().zip(m.preds) {
-            outcomes[*k] = o;
-        }
-        let gt_outcomes = m
-            .gts
-            .into_iter()
-            .map(|g| match g {
-                GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
-                    pred: kept[pred],
-                    iou,
-                },
-                other => other,
-            })
-            .collect();
-        DetectionView {
-            case,
-            token,
-            generation,
-            detections,
-            outcomes,
-            gt_outcomes,
-            categories,
-            millis,
-        }
+        self.loaded.detection_is_stale(self.session.detection.case)
     }
 
     /// Re-matches the detection on screen (after the match IoU or the min score changed).
     pub fn rematch(&mut self) {
-        if let Some(d) = self.detection.take() {
-            self.detection = Some(self.match_detections(
-                d.case,
-                d.token,
-                d.generation,
-                d.detections,
-                d.categories,
-                d.millis,
-            ));
+        if let Some(d) = self.loaded.detection.take() {
+            let frame = self.loaded.frame.as_deref();
+            self.loaded.detection = Some(d.rematched(frame, &self.session.detection));
         }
         self.rebuild_lines();
     }
 
     /// The detection on screen and its counts (drawn proposals: score ≥ the session's min score).
     pub fn detection(&self) -> Option<(&DetectionView, DetectionCounts)> {
-        let d = self.detection.as_ref()?;
-        let min = self.session.detection.min_score;
-        let mut c = DetectionCounts {
-            shown: d.detections.iter().filter(|x| x.score >= min).count(),
-            ..Default::default()
-        };
-        for o in &d.outcomes {
-            match o {
-                PredOutcome::TruePositive { .. } => c.true_positives += 1,
-                PredOutcome::FalsePositive { .. } => c.false_positives += 1,
-                PredOutcome::Ignored => {}
-            }
-        }
-        c.missed = d
-            .gt_outcomes
-            .iter()
-            .filter(|g| matches!(g, GtOutcome::Missed))
-            .count();
-        c.ground_truth = d
-            .gt_outcomes
-            .iter()
-            .filter(|g| !matches!(g, GtOutcome::Ignored))
-            .count();
-        Some((d, c))
+        self.loaded.detection(self.session.detection.min_score)
     }
 
     /// A preset view, turned so that the ego car's front is "forward" in it.
@@ -513,14 +363,12 @@ impl MlodApp {
         self.needs_fuse = true;
     }
 
-    pub(crate) fn mark_color(&mut self) {
-        self.needs_color = true;
-    }
-
     /// Re-fuses the frame with the current perturbation and recolours (the α-slider path).
     fn refuse(&mut self, now: f64) {
         self.needs_fuse = false;
-        let Some(frame) = self.frame.clone() else { return };
+        let Some(frame) = self.loaded.frame.clone() else {
+            return;
+        };
         let start = Instant::now();
         match fuse(&frame, &self.session.fuse) {
             Ok(cloud) => {
@@ -530,13 +378,13 @@ impl MlodApp {
                     .filter(|l| l.channel != LidarChannel::Top)
                     .map(|l| (l.channel, l.noise))
                     .collect();
-                self.fused = Some(cloud);
-                self.fuse_generation += 1;
+                self.loaded.fused = Some(cloud);
+                self.loaded.fuse_generation += 1;
                 self.rebuild_scene();
                 if self.session.detection.auto_run {
                     self.run_detector();
                 }
-                self.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
+                self.loaded.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
             }
             Err(e) => self.toast(now, format!("cannot fuse: {e}"), true),
         }
@@ -549,7 +397,7 @@ impl MlodApp {
     /// Hands positions, colours and lines of the visible LiDARs to the renderer.
     fn rebuild_scene(&mut self) {
         self.needs_color = false;
-        let Some(cloud) = &self.fused else { return };
+        let Some(cloud) = &self.loaded.fused else { return };
         let mut index = Vec::with_capacity(cloud.len());
         for l in &cloud.lidars {
             if self.visible(l.channel) {
@@ -583,7 +431,7 @@ impl MlodApp {
     }
 
     fn colors(&mut self) -> Vec<[u8; 4]> {
-        let Some(cloud) = &self.fused else {
+        let Some(cloud) = &self.loaded.fused else {
             return Vec::new();
         };
         if self.session.auto_range && self.session.color.mode != ColorMode::Source {
@@ -595,10 +443,10 @@ impl MlodApp {
     }
 
     fn update_histogram(&mut self) {
-        let Some(cloud) = &self.fused else { return };
+        let Some(cloud) = &self.loaded.fused else { return };
         let c = &self.session.color;
         // In source-LiDAR mode the histogram still shows tr(Ξ), on its own log range.
-        self.histogram = if c.mode == ColorMode::Source {
+        self.loaded.histogram = if c.mode == ColorMode::Source {
             histogram(
                 &cloud.trace,
                 auto_range(&cloud.trace, Scale::Log),
@@ -608,20 +456,20 @@ impl MlodApp {
         } else {
             histogram(scalars(cloud, c.mode), c.range, c.scale, HISTOGRAM_BINS)
         };
-        self.uncertain_fraction = cloud.uncertain_fraction(UNCERTAIN_TRACE);
+        self.loaded.uncertain_fraction = cloud.uncertain_fraction(UNCERTAIN_TRACE);
     }
 
     pub(crate) fn rebuild_lines(&mut self) {
         let mut lines = grid_lines(80.0, 10.0, -1.8);
         if self.session.show_ground_truth {
-            if let Some(f) = &self.frame {
+            if let Some(f) = &self.loaded.frame {
                 for b in &f.boxes {
                     lines.extend(box_lines(b.box3d.corners(), GT_COLOR, true));
                 }
             }
         }
         let settings = self.session.detection;
-        if let Some(d) = self.detection.as_ref().filter(|_| settings.show) {
+        if let Some(d) = self.loaded.detection.as_ref().filter(|_| settings.show) {
             for (det, o) in d.detections.iter().zip(&d.outcomes) {
                 if det.score < settings.min_score {
                     continue;
@@ -649,12 +497,19 @@ impl MlodApp {
         self.view.camera = s.camera.map(|c| camera_from_pose(&c)).unwrap_or_default();
         self.camera_from_session = s.camera.is_some();
         self.view.settings.point_size = s.point_size;
-        let same_dataset = self.dataset.is_some() && s.dataset == self.session.dataset;
+        let same_dataset = self.loaded.dataset.is_some() && s.dataset == self.session.dataset;
         self.wanted_token = s.sample_token.clone();
         self.session = s;
         if same_dataset {
             match self.wanted_token.clone() {
-                Some(t) if self.frame.as_ref().map(|f| f.sample_token != t).unwrap_or(true) => {
+                Some(t)
+                    if self
+                        .loaded
+                        .frame
+                        .as_ref()
+                        .map(|f| f.sample_token != t)
+                        .unwrap_or(true) =>
+                {
                     self.select_sample(&t)
                 }
                 _ => self.needs_fuse = true,
@@ -667,12 +522,12 @@ impl MlodApp {
 
     /// The fused cloud on screen.
     pub fn fused(&self) -> Option<&FusedCloud> {
-        self.fused.as_ref()
+        self.loaded.fused.as_ref()
     }
 
     /// The frame on screen.
     pub fn frame(&self) -> Option<&Frame> {
-        self.frame.as_deref()
+        self.loaded.frame.as_deref()
     }
 
     /// The session state (without the camera; see [`Self::current_session`]).
@@ -687,7 +542,7 @@ impl MlodApp {
 
     /// |P_u|/|P| of the fused cloud and the histogram the colour panel shows.
     pub fn uncertainty_summary(&self) -> (f64, &[u32]) {
-        (self.uncertain_fraction, &self.histogram)
+        (self.loaded.uncertain_fraction, &self.loaded.histogram)
     }
 
     /// The viewport (camera and draw settings) and the scene handed to the renderer.
@@ -701,50 +556,117 @@ impl MlodApp {
         (self.viewport_rect, self.hovered_box)
     }
 
-    /// Whether a load is still running (tests wait on this).
-    pub fn is_busy(&self) -> bool {
-        self.jobs.running() > 0 || self.needs_fuse || self.detect_in_flight
+    /// Carries out what the panels asked for, in order. `frame` gives the GPU device for the PNG
+    /// export (none headlessly).
+    pub fn apply_actions(&mut self, actions: Vec<Action>, now: f64, frame: Option<&eframe::Frame>) {
+        for a in actions {
+            match a {
+                Action::OpenDataset(path) => self.open_dataset(path),
+                Action::SelectSample(token) => self.select_sample(&token),
+                Action::SaveSession(path) => match self.current_session().save(&path) {
+                    Ok(()) => self.toast(now, format!("saved {}", path.display()), false),
+                    Err(e) => self.toast(now, e.to_string(), true),
+                },
+                Action::LoadSession(path) => match Session::load(&path) {
+                    Ok(s) => self.apply_session(s),
+                    Err(e) => self.toast(now, e.to_string(), true),
+                },
+                Action::ExportPng(path) => {
+                    let result = match frame.and_then(|f| f.wgpu_render_state()) {
+                        Some(rs) => viewport::render_offscreen(
+                            &rs.device,
+                            &rs.queue,
+                            &self.scene,
+                            &self.view,
+                            (1280, 800),
+                        )
+                        .map_err(|e| e.to_string())
+                        .and_then(|img| super::write_png(&path, &img).map_err(|e| e.to_string())),
+                        None => Err("no GPU device to render with".to_string()),
+                    };
+                    match result {
+                        Ok(()) => self.toast(now, format!("wrote {}", path.display()), false),
+                        Err(e) => self.toast(now, e, true),
+                    }
+                }
+                Action::ExportCloud(path) => match self.export_cloud(&path) {
+                    Ok(n) => self.toast(now, format!("wrote {} ({n} points)", path.display()), false),
+                    Err(e) => self.toast(now, e, true),
+                },
+                Action::SetPreset(v) => self.set_preset(v),
+                Action::StepSample(d) => self.step_sample(d),
+                Action::Refuse => self.mark_fuse(),
+                Action::Recolor => self.needs_color = true,
+                Action::RunDetector => self.run_detector(),
+                Action::Rematch => self.rematch(),
+                Action::RebuildLines => self.rebuild_lines(),
+            }
+        }
     }
 
-    fn handle_keys(&mut self, ctx: &egui::Context) {
-        if ctx.egui_wants_keyboard_input() {
-            return;
+    /// Writes the fused cloud on screen (all LiDARs, whatever is hidden) as PLY or PCD, by the
+    /// extension: what `mlod export` writes for the same sample and perturbation.
+    pub fn export_cloud(&self, path: &std::path::Path) -> Result<usize, String> {
+        let (Some(frame), Some(cloud)) = (self.loaded.frame.as_deref(), self.loaded.fused.as_ref()) else {
+            return Err("no sample on screen to export".into());
+        };
+        let format = crate::export::Format::from_path(path)
+            .ok_or_else(|| format!("{}: give the file a .ply or .pcd extension", path.display()))?;
+        let mut comment =
+            crate::export::source_comment(&self.session.dataset, &frame.sample_token, &self.session.fuse);
+        if !self.session.fuse.manual.is_empty() {
+            comment.push_str(" (plus the window's manual offsets)");
         }
-        if ctx.input(|i| i.key_pressed(egui::Key::D)) {
-            self.run_detector();
+        let opts = crate::export::ExportOptions {
+            format,
+            covariance: None,
+            comment: &comment,
+        };
+        crate::export::write(path, cloud, &opts).map_err(|e| e.to_string())?;
+        Ok(cloud.len())
+    }
+
+    /// The viewport, the box under the pointer and its tooltip.
+    fn central(&mut self, ui: &mut egui::Ui) {
+        let input = OverlayInput {
+            loaded: &self.loaded,
+            session: &self.session,
+            scene_index: &self.scene_index,
+            loading: self.jobs.running() > 0,
+        };
+        let out = overlay::show(ui, &mut self.view, &self.scene, &input);
+        self.viewport_rect = out.rect;
+        self.hovered_box = out.hovered_box;
+        self.hovered_detection = out.hovered_detection;
+        if let Some(text) = out.message {
+            let now = ui.input(|i| i.time);
+            self.toast(now, text, false);
         }
-        let (left, right, help, esc, bev) = ctx.input(|i| {
-            (
-                i.key_pressed(egui::Key::ArrowLeft),
-                i.key_pressed(egui::Key::ArrowRight),
-                i.key_pressed(egui::Key::F1)
-                    || i.events
-                        .iter()
-                        .any(|e| matches!(e, egui::Event::Text(t) if t == "?")),
-                i.key_pressed(egui::Key::Escape),
-                i.key_pressed(egui::Key::B),
-            )
-        });
-        if left {
-            self.step_sample(-1);
+    }
+
+    /// What the panels see of the app.
+    fn panels(&mut self) -> Panels<'_> {
+        Panels {
+            session: &mut self.session,
+            view: &mut self.view,
+            shell: &mut self.shell,
+            loaded: &self.loaded,
+            actions: Vec::new(),
         }
-        if right {
-            self.step_sample(1);
-        }
-        if help {
-            self.show_help = !self.show_help;
-        }
-        if esc {
-            self.show_help = false;
-        }
-        if bev {
-            let v = if self.view.camera.projection == Projection::BirdsEye {
-                View::Overview
-            } else {
-                View::Bev
-            };
-            self.set_preset(v);
-        }
+    }
+
+    /// The first error toast on screen, if any (a headless screenshot fails with it).
+    pub fn first_error(&self) -> Option<&str> {
+        self.shell
+            .toasts
+            .iter()
+            .find(|t| t.error)
+            .map(|t| t.text.as_str())
+    }
+
+    /// Whether a load is still running (tests wait on this).
+    pub fn is_busy(&self) -> bool {
+        self.jobs.running() > 0 || self.needs_fuse || self.loaded.detecting
     }
 
     fn handle_dropped_files(&mut self, ctx: &egui::Context) {
@@ -774,148 +696,6 @@ impl MlodApp {
             self.open_dataset(path);
         }
     }
-
-    /// The viewport and the box tooltip.
-    fn central(&mut self, ui: &mut egui::Ui) {
-        let out = viewport::show(ui, &mut self.view, &self.scene);
-        self.viewport_rect = out.response.rect;
-        if self.frame.is_none() {
-            let msg = if self.jobs.running() > 0 {
-                "loading…"
-            } else {
-                "no sample loaded — File > Open dataset…"
-            };
-            ui.painter().text(
-                out.response.rect.center(),
-                egui::Align2::CENTER_CENTER,
-                msg,
-                egui::FontId::proportional(18.0),
-                Color32::from_gray(170),
-            );
-        }
-        if let Some(i) = out.picked {
-            if let (Some(cloud), Some(&k)) = (&self.fused, self.scene_index.get(i)) {
-                let k = k as usize;
-                let ch = cloud
-                    .lidars
-                    .iter()
-                    .find(|l| l.range.contains(&k))
-                    .map(|l| l.channel.paper_name())
-                    .unwrap_or("?");
-                let now = ui.input(|i| i.time);
-                self.toast(
-                    now,
-                    format!("focused a {ch} point, tr(Ξ) = {:.4} m²", cloud.trace[k]),
-                    false,
-                );
-            }
-        }
-        self.hovered_box = None;
-        self.hovered_detection = None;
-        let Some(pointer) = out.response.hover_pos() else {
-            return;
-        };
-        let (Some(frame), Some(cloud)) = (&self.frame, &self.fused) else {
-            return;
-        };
-        let rect = out.response.rect;
-        let camera = &self.view.camera;
-        // The box under the pointer with the smallest screen rectangle; GT and proposals compete.
-        let screen_rect = |corners: [[f64; 3]; 8]| -> Option<egui::Rect> {
-            let pts: Vec<egui::Pos2> = corners
-                .iter()
-                .filter_map(|c| camera.project([c[0] as f32, c[1] as f32, c[2] as f32], rect))
-                .collect();
-            (pts.len() == 8).then(|| egui::Rect::from_points(&pts))
-        };
-        let mut best: Option<(Hovered, f32)> = None;
-        let mut consider = |h: Hovered, r: Option<egui::Rect>| {
-            if let Some(r) = r {
-                if r.contains(pointer) && best.is_none_or(|(_, a)| r.area() < a) {
-                    best = Some((h, r.area()));
-                }
-            }
-        };
-        if self.session.show_ground_truth {
-            for (bi, b) in frame.boxes.iter().enumerate() {
-                consider(Hovered::Truth(bi), screen_rect(b.box3d.corners()));
-            }
-        }
-        let settings = self.session.detection;
-        if let Some(d) = self.detection.as_ref().filter(|_| settings.show) {
-            for (i, det) in d.detections.iter().enumerate() {
-                if det.score >= settings.min_score {
-                    consider(Hovered::Proposal(i), screen_rect(det.box3d.corners()));
-                }
-            }
-        }
-        match best {
-            Some((Hovered::Truth(bi), _)) => {
-                let b = &frame.boxes[bi];
-                let stats = box_stats(cloud, &b.box3d);
-                self.hovered_box = Some((bi, stats));
-                let [l, w, h] = b.box3d.size_lwh;
-                let matched = self
-                    .detection
-                    .as_ref()
-                    .and_then(|d| d.gt_outcomes.get(bi).copied());
-                out.response.on_hover_ui_at_pointer(|ui| {
-                    ui.strong(format!("ground truth: {}", b.category));
-                    ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
-                    ui.label(format!("distance  {:.1} m", b.box3d.bev_range()));
-                    ui.label(format!("points inside  {}", stats.points));
-                    ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
-                    ui.label(format!(
-                        "uncertain (tr Ξ > 0.05)  {:.0} %",
-                        100.0 * stats.uncertain_fraction
-                    ));
-                    match matched {
-                        Some(GtOutcome::Matched { iou, .. }) => {
-                            ui.label(format!("detected: 3D IoU {iou:.2}"));
-                        }
-                        Some(GtOutcome::Missed) => {
-                            ui.label("missed by the detector");
-                        }
-                        _ => {}
-                    }
-                });
-            }
-            Some((Hovered::Proposal(i), _)) => {
-                self.hovered_detection = Some(i);
-                let Some(d) = self.detection.as_ref() else { return };
-                let det = &d.detections[i];
-                let stats = box_stats(cloud, &det.box3d);
-                let [l, w, h] = det.box3d.size_lwh;
-                let outcome = d.outcomes[i];
-                let case = d.case;
-                out.response.on_hover_ui_at_pointer(|ui| {
-                    ui.strong(format!("proposal ({}): {}", case.paper_name(), det.category));
-                    ui.label(format!("score  {:.3}", det.score));
-                    ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
-                    ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));
-                    ui.label(format!("points inside  {}", stats.points));
-                    ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
-                    match outcome {
-                        PredOutcome::TruePositive { iou, .. } => {
-                            ui.label(format!("true positive: 3D IoU {iou:.2}"));
-                        }
-                        PredOutcome::FalsePositive { best_iou } => {
-                            ui.label(format!("false positive: best 3D IoU {best_iou:.2}"));
-                        }
-                        PredOutcome::Ignored => {}
-                    }
-                });
-            }
-            None => {}
-        }
-    }
-}
-
-/// What the pointer is over.
-#[derive(Debug, Clone, Copy)]
-enum Hovered {
-    Truth(usize),
-    Proposal(usize),
 }
 
 impl MlodApp {
@@ -924,7 +704,7 @@ impl MlodApp {
         let Some((n, stamps)) = &mut self.measure else {
             return;
         };
-        if self.fused.is_none() {
+        if self.loaded.fused.is_none() {
             ctx.request_repaint();
             return;
         }
@@ -940,7 +720,7 @@ impl MlodApp {
             eprintln!(
                 "frames: {}  points: {}  mean {:.1} ms  p50 {:.1} ms  p95 {:.1} ms",
                 dt.len(),
-                self.fused.as_ref().map_or(0, |c| c.len()),
+                self.loaded.fused.as_ref().map_or(0, |c| c.len()),
                 mean,
                 pct(0.5),
                 pct(0.95)
@@ -966,49 +746,26 @@ fn ego_heading(frame: &Frame) -> f32 {
     (r[(0, 1)]).atan2(r[(0, 0)]) as f32
 }
 
-pub(crate) fn camera_from_pose(c: &CameraPose) -> Camera {
-    Camera {
-        target: c.target,
-        yaw: c.yaw,
-        pitch: c.pitch,
-        distance: c.distance,
-        fov_y: c.fov_y,
-        projection: if c.bev {
-            Projection::BirdsEye
-        } else {
-            Projection::Perspective
-        },
-    }
-}
-
-pub(crate) fn pose_from_camera(c: &Camera) -> CameraPose {
-    CameraPose {
-        target: c.target,
-        yaw: c.yaw,
-        pitch: c.pitch,
-        distance: c.distance,
-        fov_y: c.fov_y,
-        bev: c.projection == Projection::BirdsEye,
-    }
-}
-
 impl eframe::App for MlodApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
         let now = ctx.input(|i| i.time);
         self.process_jobs(now);
-        self.handle_keys(&ctx);
         self.handle_dropped_files(&ctx);
-        panels::menu_bar(self, ui, frame);
-        panels::status_bar(self, ui);
+        let mut p = self.panels();
+        panels::keys(&mut p, &ctx);
+        panels::menu_bar(&mut p, ui);
+        panels::status_bar(&mut p, ui);
         egui::Panel::left("samples")
             .resizable(true)
             .default_size(270.0)
-            .show(ui, |ui| panels::sample_browser(self, ui));
+            .show(ui, |ui| panels::sample_browser(&mut p, ui));
         egui::Panel::right("controls")
             .resizable(true)
             .default_size(330.0)
-            .show(ui, |ui| panels::controls(self, ui));
+            .show(ui, |ui| panels::controls(&mut p, ui));
+        let actions = std::mem::take(&mut p.actions);
+        self.apply_actions(actions, now, Some(frame));
         if self.needs_fuse {
             self.refuse(now);
         } else if self.needs_color {
@@ -1017,8 +774,9 @@ impl eframe::App for MlodApp {
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)
             .show(ui, |ui| self.central(ui));
-        panels::help_overlay(self, &ctx);
-        panels::toasts(self, &ctx, now);
+        let mut p = self.panels();
+        panels::help_overlay(&mut p, &ctx);
+        panels::toasts(&mut p, &ctx, now);
         if self.jobs.running() > 0 {
             ctx.request_repaint_after(std::time::Duration::from_millis(50));
         }
@@ -1026,17 +784,6 @@ impl eframe::App for MlodApp {
     }
 
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
-        eframe::set_value(storage, RECENT_KEY, &self.recent);
+        eframe::set_value(storage, RECENT_KEY, &self.shell.recent);
     }
-}
-
-/// Per-LiDAR "label (points)" for the sample browser.
-pub(crate) fn channel_counts(cloud: &FusedCloud) -> BTreeMap<LidarChannel, usize> {
-    cloud.lidars.iter().map(|l| (l.channel, l.range.len())).collect()
-}
-
-/// A coloured label for a LiDAR.
-pub(crate) fn lidar_label(ch: LidarChannel) -> RichText {
-    let [r, g, b, _] = crate::color::LIDAR_COLORS[ch as usize];
-    RichText::new(ch.paper_name()).color(Color32::from_rgb(r, g, b))
 }

@@ -6,7 +6,9 @@
 
 pub mod app;
 mod jobs;
+mod overlay;
 mod panels;
+mod state;
 pub mod viewport;
 
 use std::path::{Path, PathBuf};
@@ -15,6 +17,7 @@ use eframe::egui;
 use egui_wgpu::wgpu;
 
 pub use app::{AppOptions, MlodApp};
+pub use state::{DetectionCounts, DetectionView};
 
 /// The window title (screenshots find the window by it).
 pub const TITLE: &str = "MLOD debugger";
@@ -85,13 +88,14 @@ pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaIm
         },
         None,
     );
-    if let Some(t) = app.toasts.iter().find(|t| t.error) {
-        return Err(GuiError::Load(t.text.clone()));
+    if let Some(t) = app.first_error() {
+        return Err(GuiError::Load(t.to_string()));
     }
-    if app.fused.is_none() {
+    if app.fused().is_none() {
         return Err(GuiError::Load("no sample could be loaded".into()));
     }
     let gpu = viewport::HeadlessGpu::new()?;
     let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
-    Ok(renderer.render(&app.scene, &app.view, size)?)
+    let (view, scene) = app.viewport();
+    Ok(renderer.render(scene, view, size)?)
 }

@@ -1,14 +1,18 @@
 //! The panels around the viewport: menu, sample browser, perturbation / colour / view controls
-//! (with the tr(Ξ) legend and histogram), status bar, help overlay and toasts. They edit the
-//! app's session and mark what must be recomputed; they compute nothing themselves.
+//! (with the tr(Ξ) legend and histogram), status bar, help overlay and toasts. They draw from a
+//! [`Panels`] view of the state, edit the session and ask for the rest as [`Action`]s; they
+//! compute nothing and know nothing of the app.
 
 use std::path::PathBuf;
 
 use eframe::egui;
 use egui::{Color32, RichText, Sense, Stroke};
 
-use super::app::{channel_counts, lidar_label, MlodApp, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR};
-use super::viewport::{View, CONTROLS_HELP};
+use super::state::{
+    channel_counts, color32, lidar_label, Action, Loaded, Shell, FALSE_POSITIVE_COLOR, GT_COLOR,
+    PROPOSAL_COLOR,
+};
+use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
 use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
 use crate::detect::Case;
 use crate::lyft::LidarChannel;
@@ -18,11 +22,75 @@ use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
 /// The paper's perturbation levels (Table II).
 const ALPHA_MARKS: [f64; 4] = [0.0, 0.02, 0.04, 0.1];
 
-fn color32(c: [u8; 4]) -> Color32 {
-    Color32::from_rgba_unmultiplied(c[0], c[1], c[2], c[3])
+/// What the panels see and may edit, and the actions they ask for.
+pub struct Panels<'a> {
+    pub session: &'a mut Session,
+    pub view: &'a mut Viewport,
+    pub shell: &'a mut Shell,
+    pub loaded: &'a Loaded,
+    pub actions: Vec<Action>,
 }
 
-pub fn menu_bar(app: &mut MlodApp, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+impl Panels<'_> {
+    fn act(&mut self, a: Action) {
+        self.actions.push(a);
+    }
+}
+
+/// A file dialog's answer: a path to save to (with `name` as the suggested file name), or none.
+fn save_dialog(title: &str, filter: (&str, &[&str]), name: &str) -> Option<PathBuf> {
+    rfd::FileDialog::new()
+        .set_title(title)
+        .add_filter(filter.0, filter.1)
+        .set_file_name(name)
+        .save_file()
+}
+
+/// The keyboard shortcuts (when no text field has the focus): D runs the detector, ←/→ step
+/// through the samples, B toggles bird's eye, F1 or ? the help, Esc closes it.
+pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
+    if ctx.egui_wants_keyboard_input() {
+        return;
+    }
+    let (detect, left, right, help, esc, bev) = ctx.input(|i| {
+        (
+            i.key_pressed(egui::Key::D),
+            i.key_pressed(egui::Key::ArrowLeft),
+            i.key_pressed(egui::Key::ArrowRight),
+            i.key_pressed(egui::Key::F1)
+                || i.events
+                    .iter()
+                    .any(|e| matches!(e, egui::Event::Text(t) if t == "?")),
+            i.key_pressed(egui::Key::Escape),
+            i.key_pressed(egui::Key::B),
+        )
+    });
+    if detect {
+        p.act(Action::RunDetector);
+    }
+    if left {
+        p.act(Action::StepSample(-1));
+    }
+    if right {
+        p.act(Action::StepSample(1));
+    }
+    if help {
+        p.shell.show_help = !p.shell.show_help;
+    }
+    if esc {
+        p.shell.show_help = false;
+    }
+    if bev {
+        let v = if p.view.camera.projection == Projection::BirdsEye {
+            View::Overview
+        } else {
+            View::Bev
+        };
+        p.act(Action::SetPreset(v));
+    }
+}
+
+pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     egui::Panel::top("menu").show(ui, |ui| {
         egui::MenuBar::new().ui(ui, |ui| {
             ui.menu_button("File", |ui| {
@@ -31,30 +99,58 @@ pub fn menu_bar(app: &mut MlodApp, ui: &mut egui::Ui, frame: &mut eframe::Frame)
                         .set_title("Open a Lyft-format dataset")
                         .pick_folder()
                     {
-                        app.open_dataset(dir);
+                        p.act(Action::OpenDataset(dir));
                     }
                 }
                 ui.menu_button("Recent datasets", |ui| {
-                    let recent: Vec<PathBuf> = app.recent.clone();
+                    let recent: Vec<PathBuf> = p.shell.recent.clone();
                     if recent.is_empty() {
                         ui.label("none yet");
                     }
-                    for p in recent {
-                        if ui.button(p.display().to_string()).clicked() {
-                            app.open_dataset(p);
+                    for path in recent {
+                        if ui.button(path.display().to_string()).clicked() {
+                            p.act(Action::OpenDataset(path));
                         }
                     }
                 });
                 ui.separator();
                 if ui.button("Save session…").clicked() {
-                    save_session(app, ui.ctx());
+                    if let Some(path) = save_dialog("Save session", ("session", &["json"]), "session.json") {
+                        p.act(Action::SaveSession(path));
+                    }
                 }
                 if ui.button("Load session…").clicked() {
-                    load_session(app, ui.ctx());
+                    if let Some(path) = rfd::FileDialog::new()
+                        .add_filter("session", &["json"])
+                        .pick_file()
+                    {
+                        p.act(Action::LoadSession(path));
+                    }
                 }
                 ui.separator();
                 if ui.button("Export viewport PNG…").clicked() {
-                    export_png(app, ui.ctx(), frame);
+                    if let Some(path) = save_dialog("Export viewport", ("PNG", &["png"]), "viewport.png") {
+                        p.act(Action::ExportPng(path));
+                    }
+                }
+                let can_export = p.loaded.fused.is_some();
+                if ui
+                    .add_enabled(can_export, egui::Button::new("Export fused cloud…"))
+                    .on_hover_text(
+                        "The fused, perturbed cloud with per-point LiDAR and tr(Ξ): PLY (CloudCompare, \
+                         Open3D) or PCD (PCL), chosen by the extension",
+                    )
+                    .clicked()
+                {
+                    if let Some(path) = rfd::FileDialog::new()
+                        .set_title("Export fused cloud")
+                        .add_filter("PLY", &["ply"])
+                        .add_filter("PCD", &["pcd"])
+                        .set_file_name("fused.ply")
+                        .save_file()
+                    {
+                        p.act(Action::ExportCloud(path));
+                    }
                 }
                 ui.separator();
                 if ui.button("Quit").clicked() {
@@ -64,84 +160,33 @@ pub fn menu_bar(app: &mut MlodApp, ui: &mut egui::Ui, frame: &mut eframe::Frame)
             ui.menu_button("View", |ui| {
                 for v in View::ALL {
                     if ui.button(v.name()).clicked() {
-                        app.set_preset(v);
+                        p.act(Action::SetPreset(v));
                     }
                 }
             });
             ui.menu_button("Help", |ui| {
                 if ui.button("Keyboard and mouse (F1)").clicked() {
-                    app.show_help = true;
+                    p.shell.show_help = true;
                 }
             });
             ui.separator();
             ui.label(RichText::new("MLOD debugger").strong());
-            let name = app
+            let name = p
                 .session
                 .dataset
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
             ui.label(RichText::new(name).weak())
-                .on_hover_text(app.session.dataset.display().to_string());
+                .on_hover_text(p.session.dataset.display().to_string());
         });
     });
 }
 
-fn save_session(app: &mut MlodApp, ctx: &egui::Context) {
-    let now = ctx.input(|i| i.time);
-    let Some(path) = rfd::FileDialog::new()
-        .add_filter("session", &["json"])
-        .set_file_name("session.json")
-        .save_file()
-    else {
-        return;
-    };
-    match app.current_session().save(&path) {
-        Ok(()) => app.toast(now, format!("saved {}", path.display()), false),
-        Err(e) => app.toast(now, e.to_string(), true),
-    }
-}
-
-fn load_session(app: &mut MlodApp, ctx: &egui::Context) {
-    let now = ctx.input(|i| i.time);
-    let Some(path) = rfd::FileDialog::new()
-        .add_filter("session", &["json"])
-        .pick_file()
-    else {
-        return;
-    };
-    match Session::load(&path) {
-        Ok(s) => app.apply_session(s),
-        Err(e) => app.toast(now, e.to_string(), true),
-    }
-}
-
-fn export_png(app: &mut MlodApp, ctx: &egui::Context, frame: &eframe::Frame) {
-    let now = ctx.input(|i| i.time);
-    let Some(rs) = frame.wgpu_render_state() else {
-        app.toast(now, "no GPU device to render with", true);
-        return;
-    };
-    let Some(path) = rfd::FileDialog::new()
-        .add_filter("PNG", &["png"])
-        .set_file_name("viewport.png")
-        .save_file()
-    else {
-        return;
-    };
-    let result = super::viewport::render_offscreen(&rs.device, &rs.queue, &app.scene, &app.view, (1280, 800))
-        .map_err(|e| e.to_string())
-        .and_then(|img| super::write_png(&path, &img).map_err(|e| e.to_string()));
-    match result {
-        Ok(()) => app.toast(now, format!("wrote {}", path.display()), false),
-        Err(e) => app.toast(now, e, true),
-    }
-}
-
-pub fn status_bar(app: &mut MlodApp, ui: &mut egui::Ui) {
+pub fn status_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     egui::Panel::bottom("status").show(ui, |ui| {
         ui.horizontal(|ui| {
-            match (&app.frame, &app.fused) {
+            match (&p.loaded.frame, &p.loaded.fused) {
                 (Some(f), Some(c)) => {
                     ui.label(format!("{} points", c.len()));
                     for (ch, n) in channel_counts(c) {
@@ -151,10 +196,10 @@ pub fn status_bar(app: &mut MlodApp, ui: &mut egui::Ui) {
                     ui.separator();
                     ui.label(format!("{} boxes", f.boxes.len()));
                     ui.separator();
-                    if app.show_timings {
+                    if p.shell.show_timings {
                         ui.label(format!(
                             "load {:.0} ms · fuse + tr(Ξ) + colour {:.1} ms",
-                            app.frame_ms, app.fuse_ms
+                            p.loaded.frame_ms, p.loaded.fuse_ms
                         ));
                     }
                 }
@@ -169,15 +214,15 @@ pub fn status_bar(app: &mut MlodApp, ui: &mut egui::Ui) {
     });
 }
 
-pub fn sample_browser(app: &mut MlodApp, ui: &mut egui::Ui) {
+pub fn sample_browser(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("Samples");
     ui.label(RichText::new("Left / Right arrow keys step through samples").weak());
     ui.separator();
-    let current = app.frame.as_ref().map(|f| f.sample_token.clone());
+    let current = p.loaded.frame.as_ref().map(|f| f.sample_token.clone());
     let mut clicked = None;
     egui::ScrollArea::vertical().show(ui, |ui| {
         let mut last_scene = String::new();
-        for (i, s) in app.samples.iter().enumerate() {
+        for (i, s) in p.loaded.samples.iter().enumerate() {
             if s.scene_name != last_scene {
                 ui.add_space(4.0);
                 ui.label(RichText::new(format!("scene {}", s.scene_name)).strong().small());
@@ -208,29 +253,29 @@ pub fn sample_browser(app: &mut MlodApp, ui: &mut egui::Ui) {
         }
     });
     if let Some(t) = clicked {
-        app.select_sample(&t);
+        p.act(Action::SelectSample(t));
     }
 }
 
-pub fn controls(app: &mut MlodApp, ui: &mut egui::Ui) {
+pub fn controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     egui::ScrollArea::vertical().show(ui, |ui| {
-        perturbation(app, ui);
+        perturbation(p, ui);
         ui.separator();
-        detection(app, ui);
+        detection(p, ui);
         ui.separator();
-        coloring(app, ui);
+        coloring(p, ui);
         ui.separator();
-        view_controls(app, ui);
+        view_controls(p, ui);
     });
 }
 
-fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
+fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("Extrinsic perturbation");
-    let p = &mut app.session.fuse;
+    let fp = &mut p.session.fuse;
     let mut changed = false;
     changed |= ui
         .add(
-            egui::Slider::new(&mut p.perturbation.alpha, 0.0..=0.1)
+            egui::Slider::new(&mut fp.perturbation.alpha, 0.0..=0.1)
                 .text("α")
                 .step_by(0.001)
                 .fixed_decimals(3),
@@ -240,10 +285,10 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
         ui.label(RichText::new("paper levels").weak());
         for a in ALPHA_MARKS {
             if ui
-                .selectable_label(p.perturbation.alpha == a, format!("{a}"))
+                .selectable_label(fp.perturbation.alpha == a, format!("{a}"))
                 .clicked()
             {
-                p.perturbation.alpha = a;
+                fp.perturbation.alpha = a;
                 changed = true;
             }
         }
@@ -251,7 +296,7 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         let label = ui.label("seed");
         changed |= ui
-            .add(egui::DragValue::new(&mut p.perturbation.seed))
+            .add(egui::DragValue::new(&mut fp.perturbation.seed))
             .labelled_by(label.id)
             .changed();
         if ui
@@ -259,11 +304,11 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
             .on_hover_text("draw a new perturbation (next seed)")
             .clicked()
         {
-            p.perturbation.seed = p.perturbation.seed.wrapping_add(1);
+            fp.perturbation.seed = fp.perturbation.seed.wrapping_add(1);
             changed = true;
         }
     });
-    let mut decoupled = p.prior_alpha.is_some();
+    let mut decoupled = fp.prior_alpha.is_some();
     if ui
         .checkbox(&mut decoupled, "prior assumes another α")
         .on_hover_text(
@@ -271,10 +316,10 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
         )
         .changed()
     {
-        p.prior_alpha = decoupled.then_some(p.perturbation.alpha);
+        fp.prior_alpha = decoupled.then_some(fp.perturbation.alpha);
         changed = true;
     }
-    if let Some(pa) = &mut p.prior_alpha {
+    if let Some(pa) = &mut fp.prior_alpha {
         changed |= ui
             .add(
                 egui::Slider::new(pa, 0.0..=0.1)
@@ -287,11 +332,11 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.label("linearisation");
         for lin in Linearization::ALL {
-            changed |= ui.radio_value(&mut p.linearization, lin, lin.name()).changed();
+            changed |= ui.radio_value(&mut fp.linearization, lin, lin.name()).changed();
         }
     });
     for ch in [LidarChannel::FrontLeft, LidarChannel::FrontRight] {
-        let sampled = app.session.sampled.get(&ch).copied();
+        let sampled = p.session.sampled.get(&ch).copied();
         egui::CollapsingHeader::new(lidar_label(ch))
             .id_salt(ch.as_str())
             .default_open(false)
@@ -312,7 +357,7 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
                     ));
                 }
                 ui.label(RichText::new("manual offset (added)").weak());
-                let m = app.session.fuse.manual.entry(ch).or_default();
+                let m = p.session.fuse.manual.entry(ch).or_default();
                 let mut deg = m.phi.map(f64::to_degrees);
                 let mut cm = m.rho.map(|v| v * 100.0);
                 changed |= drag_row(ui, &mut deg, ["roll", "pitch", "yaw"], 0.05, 10.0, "°");
@@ -327,22 +372,22 @@ fn perturbation(app: &mut MlodApp, ui: &mut egui::Ui) {
                 }
             });
     }
-    app.session.fuse.manual.retain(|_, n| *n != ExtrinsicNoise::ZERO);
+    p.session.fuse.manual.retain(|_, n| *n != ExtrinsicNoise::ZERO);
     if changed {
-        app.mark_fuse();
+        p.act(Action::Refuse);
     }
 }
 
 /// Three labelled drag values in a row, each within ±`limit`; true if any changed.
 /// Stage-1 detection: pick a case, run it on the sample on screen, see its proposals matched
 /// against the ground truth.
-fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
+fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("Detection (stage 1)");
     let mut run = false;
     let mut rematch = false;
     let mut redraw = false;
     ui.horizontal(|ui| {
-        let d = &mut app.session.detection;
+        let d = &mut p.session.detection;
         egui::ComboBox::new("mlod_detector_case", "case")
             .selected_text(d.case.paper_name())
             .show_ui(ui, |ui| {
@@ -350,17 +395,17 @@ fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
                     ui.selectable_value(&mut d.case, c, c.paper_name());
                 }
             });
-        let label = if app.is_detecting() {
+        let label = if p.loaded.detecting {
             "Running…"
         } else {
             "Run (D)"
         };
         run |= ui
-            .add_enabled(app.frame.is_some(), egui::Button::new(label))
+            .add_enabled(p.loaded.frame.is_some(), egui::Button::new(label))
             .on_hover_text("Run the detector on this sample with the current perturbation")
             .clicked();
     });
-    let d = &mut app.session.detection;
+    let d = &mut p.session.detection;
     ui.checkbox(&mut d.auto_run, "run again on every change")
         .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
     rematch |= ui
@@ -377,8 +422,8 @@ fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
             RichText::new("proposal boxes").color(color32(PROPOSAL_COLOR)),
         )
         .changed();
-    let stale = app.detection_is_stale();
-    match app.detection() {
+    let stale = p.loaded.detection_is_stale(p.session.detection.case);
+    match p.loaded.detection(p.session.detection.min_score) {
         Some((v, c)) => {
             ui.horizontal_wrapped(|ui| {
                 ui.label(format!("{}:", v.case.paper_name()));
@@ -397,7 +442,7 @@ fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
                     .color(color32(GT_COLOR)),
                 );
             });
-            if app.show_timings {
+            if p.shell.show_timings {
                 ui.label(
                     RichText::new(format!(
                         "{:.0} ms (weights, fuse, voxelise, network, NMS)",
@@ -418,12 +463,12 @@ fn detection(app: &mut MlodApp, ui: &mut egui::Ui) {
         }
     }
     if run {
-        app.run_detector();
+        p.act(Action::RunDetector);
     }
     if rematch {
-        app.rematch();
+        p.act(Action::Rematch);
     } else if redraw {
-        app.rebuild_lines();
+        p.act(Action::RebuildLines);
     }
 }
 
@@ -449,9 +494,9 @@ fn drag_row(
     changed
 }
 
-fn coloring(app: &mut MlodApp, ui: &mut egui::Ui) {
+fn coloring(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("Colour");
-    let c = &mut app.session.color;
+    let c = &mut p.session.color;
     let mut changed = false;
     ui.horizontal_wrapped(|ui| {
         for m in ColorMode::ALL {
@@ -462,9 +507,9 @@ fn coloring(app: &mut MlodApp, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             changed |= ui.radio_value(&mut c.scale, Scale::Linear, "linear").changed();
             changed |= ui.radio_value(&mut c.scale, Scale::Log, "log").changed();
-            changed |= ui.checkbox(&mut app.session.auto_range, "auto range").changed();
+            changed |= ui.checkbox(&mut p.session.auto_range, "auto range").changed();
         });
-        if !app.session.auto_range {
+        if !p.session.auto_range {
             ui.horizontal(|ui| {
                 let (lo, hi) = &mut c.range;
                 changed |= ui
@@ -490,15 +535,15 @@ fn coloring(app: &mut MlodApp, ui: &mut egui::Ui) {
         c.highlight_above = hl.then_some(UNCERTAIN_TRACE);
         changed = true;
     }
-    legend(app, ui);
-    histogram(app, ui);
+    legend(p, ui);
+    histogram(p, ui);
     if changed {
-        app.mark_color();
+        p.act(Action::Recolor);
     }
 }
 
-fn legend(app: &MlodApp, ui: &mut egui::Ui) {
-    let c = &app.session.color;
+fn legend(p: &Panels<'_>, ui: &mut egui::Ui) {
+    let c = &p.session.color;
     if c.mode == ColorMode::Source {
         ui.horizontal(|ui| {
             for ch in LidarChannel::ALL {
@@ -571,25 +616,25 @@ fn format_tick(t: f32) -> String {
     }
 }
 
-fn histogram(app: &MlodApp, ui: &mut egui::Ui) {
-    let Some(cloud) = &app.fused else { return };
-    if app.histogram.is_empty() {
+fn histogram(p: &Panels<'_>, ui: &mut egui::Ui) {
+    let Some(cloud) = &p.loaded.fused else { return };
+    if p.loaded.histogram.is_empty() {
         return;
     }
-    let traced = app.session.color.mode == ColorMode::Source;
+    let traced = p.session.color.mode == ColorMode::Source;
     let title = if traced {
         "tr(Ξ) histogram (log)".to_string()
     } else {
-        format!("{} histogram", app.session.color.mode.label())
+        format!("{} histogram", p.session.color.mode.label())
     };
     ui.label(RichText::new(title).weak());
     let width = ui.available_width().min(300.0);
     let (rect, _) = ui.allocate_exact_size(egui::vec2(width, 70.0), Sense::hover());
     let painter = ui.painter_at(rect);
     painter.rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
-    let max = app.histogram.iter().copied().max().unwrap_or(1).max(1) as f32;
-    let n = app.histogram.len() as f32;
-    for (i, &count) in app.histogram.iter().enumerate() {
+    let max = p.loaded.histogram.iter().copied().max().unwrap_or(1).max(1) as f32;
+    let n = p.loaded.histogram.len() as f32;
+    for (i, &count) in p.loaded.histogram.iter().enumerate() {
         if count == 0 {
             continue;
         }
@@ -613,8 +658,8 @@ fn histogram(app: &MlodApp, ui: &mut egui::Ui) {
     }
     ui.label(format!(
         "uncertain points |P_u|/|P| = {:.1} %  (tr Ξ > {UNCERTAIN_TRACE}, {} of {})",
-        100.0 * app.uncertain_fraction,
-        (app.uncertain_fraction * cloud.len() as f64).round(),
+        100.0 * p.loaded.uncertain_fraction,
+        (p.loaded.uncertain_fraction * cloud.len() as f64).round(),
         cloud.len()
     ));
     if let Some((lo, hi)) = cloud.trace_range() {
@@ -622,27 +667,27 @@ fn histogram(app: &MlodApp, ui: &mut egui::Ui) {
     }
 }
 
-fn view_controls(app: &mut MlodApp, ui: &mut egui::Ui) {
+fn view_controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("View");
     ui.horizontal_wrapped(|ui| {
         for v in View::ALL {
             if ui.button(v.name()).clicked() {
-                app.set_preset(v);
+                p.act(Action::SetPreset(v));
             }
         }
     });
-    ui.add(egui::Slider::new(&mut app.view.settings.point_size, 1.0..=8.0).text("point size"));
+    ui.add(egui::Slider::new(&mut p.view.settings.point_size, 1.0..=8.0).text("point size"));
     let mut changed = false;
     ui.horizontal(|ui| {
         for ch in LidarChannel::ALL {
-            let mut v = app.session.visible.get(&ch).copied().unwrap_or(true);
+            let mut v = p.session.visible.get(&ch).copied().unwrap_or(true);
             if ui.checkbox(&mut v, lidar_label(ch)).changed() {
-                app.session.visible.insert(ch, v);
+                p.session.visible.insert(ch, v);
                 changed = true;
             }
         }
     });
-    let mut gt = app.session.show_ground_truth;
+    let mut gt = p.session.show_ground_truth;
     if ui
         .checkbox(
             &mut gt,
@@ -650,16 +695,16 @@ fn view_controls(app: &mut MlodApp, ui: &mut egui::Ui) {
         )
         .changed()
     {
-        app.session.show_ground_truth = gt;
-        app.rebuild_lines();
+        p.session.show_ground_truth = gt;
+        p.act(Action::RebuildLines);
     }
     if changed {
-        app.mark_fuse();
+        p.act(Action::Refuse);
     }
 }
 
-pub fn help_overlay(app: &mut MlodApp, ctx: &egui::Context) {
-    if !app.show_help {
+pub fn help_overlay(p: &mut Panels<'_>, ctx: &egui::Context) {
+    if !p.shell.show_help {
         return;
     }
     let mut open = true;
@@ -671,19 +716,19 @@ pub fn help_overlay(app: &mut MlodApp, ctx: &egui::Context) {
         ui.label("Drop a dataset folder or a session .json on the window to open it.");
     });
     if !open {
-        app.show_help = false;
+        p.shell.show_help = false;
     }
 }
 
-pub fn toasts(app: &mut MlodApp, ctx: &egui::Context, now: f64) {
-    app.toasts.retain(|t| t.until > now);
-    if app.toasts.is_empty() {
+pub fn toasts(p: &mut Panels<'_>, ctx: &egui::Context, now: f64) {
+    p.shell.toasts.retain(|t| t.until > now);
+    if p.shell.toasts.is_empty() {
         return;
     }
     egui::Area::new(egui::Id::unique("mlod_toasts"))
         .anchor(egui::Align2::RIGHT_BOTTOM, [-12.0, -36.0])
         .show(ctx, |ui| {
-            for t in &app.toasts {
+            for t in &p.shell.toasts {
                 let fill = if t.error {
                     Color32::from_rgb(110, 30, 30)
                 } else {

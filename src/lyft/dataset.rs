@@ -369,6 +369,30 @@ fn scene_order(t: &Tables) -> Vec<usize> {
     order
 }
 
+/// The project's train/validation split of a dataset, by scene: the scenes in scene order, every
+/// 10th (index % 10 == 9) is held out for validation (temperature fitting, tuning), the rest is
+/// trained on. Returns the sample tokens of each, in scene order. Test scenes live in another
+/// dataset generated with another seed.
+pub fn train_validation_split(dataset: &Dataset) -> (Vec<String>, Vec<String>) {
+    let mut scenes: Vec<String> = Vec::new();
+    let (mut train, mut val) = (Vec::new(), Vec::new());
+    for s in dataset.samples() {
+        let idx = match scenes.iter().position(|x| *x == s.scene_token) {
+            Some(i) => i,
+            None => {
+                scenes.push(s.scene_token.clone());
+                scenes.len() - 1
+            }
+        };
+        if idx % 10 == 9 {
+            val.push(s.sample_token);
+        } else {
+            train.push(s.sample_token);
+        }
+    }
+    (train, val)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

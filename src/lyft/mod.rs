@@ -23,7 +23,7 @@ pub mod inspect;
 pub mod pointcloud;
 pub mod tables;
 
-pub use dataset::{resolve_inside, Dataset, LidarChannel, SampleSummary};
+pub use dataset::{resolve_inside, train_validation_split, Dataset, LidarChannel, SampleSummary};
 pub use error::LyftError;
 pub use frame::{pyquaternion_yaw, Frame, FrameInfo, GtBox, LidarInfo, LidarScan};
 pub use inspect::{inspect, inspect_with, list, InspectBox, InspectExtrinsic, InspectLidar, InspectReport};

@@ -23,18 +23,8 @@ use rayon::prelude::*;
 use super::noise::{hash_key, RayStream};
 use super::rig::{ego_body_blocks, LidarModel, LIDAR_COUNT, LYFT_MOUNTS};
 use super::scene::{SceneWorld, Town};
+pub use super::shapes::Hit;
 use super::shapes::{Material, Primitive};
-
-/// What a LiDAR return hit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Hit {
-    /// The road, curbs, sidewalks, lawns.
-    Ground,
-    /// A building, wall, hedge, pole, sign or tree (not annotated).
-    Static,
-    /// The actor with this index in [`SceneWorld::actors`].
-    Actor(u32),
-}
 
 /// One LiDAR's sweep: points in its own sensor frame, exactly as written to the `.bin`.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -18,9 +18,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::actors::{self, ActorShape, Category};
 use super::noise::layout_rng;
-use super::raycast::Hit;
 use super::rig::{LidarMount, LYFT_MOUNTS};
-use super::shapes::Primitive;
+use super::shapes::{Hit, Primitive};
 use super::street::{Street, StreetLayout};
 use super::SynthConfig;
 use crate::geometry::{rpy_to_matrix, Box3d, Pose};

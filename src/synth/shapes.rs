@@ -8,7 +8,16 @@
 //! Each test returns the entry distance and the outward normal there; rays starting inside a solid
 //! do not hit it. Surfaces carry a [`Material`] whose reflectivity drives intensity and detection.
 
-use super::raycast::Hit;
+/// What a LiDAR return hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Hit {
+    /// The road, curbs, sidewalks, lawns.
+    Ground,
+    /// A building, wall, hedge, pole, sign or tree (not annotated).
+    Static,
+    /// The actor with this index in [`super::scene::SceneWorld::actors`].
+    Actor(u32),
+}
 
 /// Surface reflectivity (0–1), optionally different on steep faces (glass sides of a cabin whose
 /// roof is painted).

@@ -14,8 +14,7 @@
 
 use rand::Rng;
 
-use super::raycast::Hit;
-use super::shapes::{materials, Axis, Material, Primitive, Shape};
+use super::shapes::{materials, Axis, Hit, Material, Primitive, Shape};
 
 /// The cross-section of a street (m); everything is symmetric about y = 0.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,0 +1,46 @@
+//! Value parsers and helpers shared by the subcommands.
+
+use anyhow::{Context, Result};
+
+pub fn parse_f64(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !v.is_finite() {
+        return Err(format!("'{s}' is not a finite number"));
+    }
+    Ok(v)
+}
+
+pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers, got '{s}'"));
+    }
+    Ok([parse_f64(parts[0])?, parse_f64(parts[1])?, parse_f64(parts[2])?])
+}
+
+pub fn parse_unit(s: &str) -> Result<f64, String> {
+    let v = parse_f64(s)?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("must be in [0, 1], got {v}"));
+    }
+    Ok(v)
+}
+
+pub fn parse_alpha(s: &str) -> Result<f64, String> {
+    let a = parse_f64(s)?;
+    if a < 0.0 {
+        return Err(format!("alpha must be >= 0, got {a}"));
+    }
+    Ok(a)
+}
+
+/// The sample asked for, or the dataset's first sample in scene order.
+pub fn sample_token(dataset: &mlod::lyft::Dataset, sample: Option<&str>) -> Result<String> {
+    match sample {
+        Some(t) => Ok(t.to_string()),
+        None => Ok(dataset
+            .first_sample_token()
+            .context("the dataset has no samples")?
+            .to_string()),
+    }
+}

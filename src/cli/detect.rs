@@ -1,0 +1,146 @@
+//! `mlod detect`: run a shipped stage-1 detector on one sample and print its boxes; the
+//! `DetectorRun` options that `eval --case` and `table1` share.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use mlod::detect::model::{load_detector_with, Voting};
+use mlod::detect::weights::default_models_dir;
+use mlod::detect::{Case, Detection};
+use mlod::pipeline::FuseParams;
+
+use super::args::{parse_alpha, sample_token};
+
+/// Which shipped detector weights to run, on which perturbation: shared by `mlod detect`,
+/// `mlod eval --case` and `mlod table1`.
+#[derive(clap::Args)]
+pub struct DetectorRun {
+    /// α of the perturbation injected into the auxiliary LiDARs (one draw, the same
+    /// mis-calibration for every sample, as on one car).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
+    pub alpha: f64,
+    /// Seed of the perturbation draw.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+    /// Box voting after NMS: each detection becomes the score-weighted mean of the candidates
+    /// overlapping it by at least this IoU (BEV; 3D in Result Fusion's merge). `manifest`: as
+    /// the models' manifest.json says (`mlod train tune-vote`), `off`: plain NMS, or an IoU.
+    #[arg(long, default_value = "manifest")]
+    pub vote_iou: Voting,
+}
+
+impl DetectorRun {
+    /// The detector of `case` from the models folder, with the decoding asked for.
+    pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
+        Ok(load_detector_with(&self.models_dir(), case, self.vote_iou)?)
+    }
+
+    /// The models folder asked for, or the shipped one.
+    pub fn models_dir(&self) -> PathBuf {
+        self.models.clone().unwrap_or_else(default_models_dir)
+    }
+
+    /// Fuse parameters with the perturbation asked for.
+    pub fn fuse_params(&self) -> Result<FuseParams> {
+        Ok(FuseParams {
+            perturbation: mlod::uncertainty::Perturbation::new(self.alpha, self.seed)?,
+            ..Default::default()
+        })
+    }
+}
+
+#[derive(clap::Args)]
+pub struct DetectArgs {
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Sample token (default: the first sample in scene order).
+    #[arg(long)]
+    sample: Option<String>,
+    #[arg(long)]
+    case: Case,
+    #[command(flatten)]
+    run: DetectorRun,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+    /// base: base-frame boxes; lyft: the devkit's prediction format (global frame).
+    #[arg(long, default_value = "base")]
+    format: DetectFormat,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DetectFormat {
+    Base,
+    Lyft,
+}
+
+pub fn detect(a: DetectArgs) -> Result<()> {
+    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let token = sample_token(&dataset, a.sample.as_deref())?;
+    let frame = dataset.frame(&token)?;
+    let params = a.run.fuse_params()?;
+    let detector = a.run.load(a.case)?;
+    let t0 = std::time::Instant::now();
+    let dets = detector.detect(&frame, &params)?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    match a.format {
+        DetectFormat::Base => {
+            if a.json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&base_json(&token, a.case, &dets))?
+                );
+            } else {
+                println!(
+                    "{} on {token}: {} boxes in {ms:.1} ms (base frame)",
+                    a.case.paper_name(),
+                    dets.len()
+                );
+                for d in &dets {
+                    let b = &d.box3d;
+                    println!(
+                        "  {:<6} score {:.3}  center [{:8.3}, {:8.3}, {:7.3}]  lwh [{:.2}, {:.2}, {:.2}]  yaw {:7.4}",
+                        d.category, d.score, b.center[0], b.center[1], b.center[2], b.size_lwh[0], b.size_lwh[1],
+                        b.size_lwh[2], b.yaw
+                    );
+                }
+            }
+        }
+        DetectFormat::Lyft => {
+            let to_global = frame.primary.info.ego_to_global * frame.primary.info.sensor_to_ego;
+            let rows: Vec<mlod::eval::LyftBox> = dets
+                .iter()
+                .map(|d| {
+                    mlod::eval::LyftBox::from_base(
+                        &token,
+                        &d.box3d,
+                        &to_global,
+                        &d.category,
+                        Some(f64::from(d.score)),
+                    )
+                })
+                .collect();
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        }
+    }
+    Ok(())
+}
+
+fn base_json(token: &str, case: Case, dets: &[Detection]) -> serde_json::Value {
+    serde_json::json!({
+        "sample_token": token,
+        "case": case,
+        "frame": "base (LIDAR_TOP)",
+        "detections": dets.iter().map(|d| serde_json::json!({
+            "center": d.box3d.center,
+            "size_lwh": d.box3d.size_lwh,
+            "yaw": d.box3d.yaw,
+            "score": d.score,
+            "category": d.category,
+        })).collect::<Vec<_>>(),
+    })
+}

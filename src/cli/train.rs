@@ -1,0 +1,272 @@
+//! `mlod train`: the stage-1 detectors (paper §IV-A, §V-A-5), Result Fusion's temperatures and
+//! the box-voting IoU.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use mlod::detect::model::Voting;
+use mlod::detect::train::{calibrate_temperatures, train_stage1, TrainConfig};
+use mlod::detect::weights::default_models_dir;
+use mlod::detect::Case;
+use mlod::pipeline::FuseParams;
+
+use super::detect::DetectorRun;
+
+#[derive(clap::Subcommand)]
+pub enum TrainCommand {
+    /// Train a stage-1 detector (top|left|right|input|feature); resumable, deterministic per seed.
+    Stage1(Stage1Args),
+    /// Fit Result Fusion's per-generator temperatures on the validation split (scenes % 10 == 9).
+    CalibrateTemperature(CalibrateArgs),
+    /// Choose the box-voting IoU of every detector on the validation split (plain NMS or each
+    /// candidate, by the mean car moderate AP_3D@0.7 over the cases) and record it, with every
+    /// candidate's figures, in the models' manifest.json.
+    TuneVote(TuneVoteArgs),
+}
+
+#[derive(clap::Args)]
+pub struct TuneVoteArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models); its manifest records the choice.
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Candidate vote IoUs in (0, 1] besides plain NMS (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.7")]
+    candidates: Vec<f64>,
+    /// The cases scored (comma separated; default: all six).
+    #[arg(long, value_delimiter = ',')]
+    cases: Vec<Case>,
+    /// At most this many validation samples.
+    #[arg(long)]
+    samples: Option<usize>,
+}
+
+#[derive(clap::Args)]
+pub struct Stage1Args {
+    #[arg(long)]
+    case: Case,
+    /// Training dataset (root or version folder); every 10th scene is held out for validation.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Final weights file (safetensors); its folder's manifest.json gets the model's entry.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 8000)]
+    steps: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Continue from the checkpoint (default <out>.ckpt.safetensors) after a kill.
+    #[arg(long)]
+    resume: bool,
+    /// Checkpoint file (default: <out> with extension .ckpt.safetensors).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints.
+    #[arg(long, default_value_t = 300.0)]
+    checkpoint_every: f64,
+    /// Peak learning rate (AdamW; warm-up then cosine decay).
+    #[arg(long, default_value_t = 2e-3)]
+    lr: f64,
+    /// Train on at most this many samples (0: all).
+    #[arg(long, default_value_t = 0)]
+    max_samples: usize,
+    /// Start from another model's weights (warm start; a single-branch model initialises every
+    /// Feature Fusion branch).
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Ground-truth sampling (SECOND's dataset sampling, paper §V-A-5): top every training frame
+    /// up to N boxes of the learned category with objects from the training split (0: off;
+    /// SECOND uses 15 for cars).
+    #[arg(long, default_value_t = 0)]
+    gt_sample: usize,
+    /// SECOND's code weight of the box-size residuals (log l, log w, log h) in the regression loss
+    /// (1: all seven residuals weigh the same, as in SECOND's default).
+    #[arg(long, default_value_t = 1.0)]
+    size_weight: f32,
+    /// Print one line every N steps (besides the progress bar).
+    #[arg(long, default_value_t = 50)]
+    log_every: u64,
+}
+
+#[derive(clap::Args)]
+pub struct CalibrateArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// At most this many validation samples (0: all).
+    #[arg(long, default_value_t = 0)]
+    samples: usize,
+    /// 3D IoU for a detection to count as a true positive.
+    #[arg(long, default_value_t = 0.7)]
+    iou: f64,
+}
+
+fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
+pub fn train(cmd: TrainCommand) -> Result<()> {
+    match cmd {
+        TrainCommand::Stage1(a) => {
+            let mut cfg = TrainConfig::new(a.case, a.dataset, a.out);
+            cfg.steps = a.steps;
+            cfg.seed = a.seed;
+            cfg.resume = a.resume;
+            cfg.lr = a.lr;
+            cfg.max_samples = a.max_samples;
+            cfg.checkpoint_every_s = a.checkpoint_every;
+            cfg.init = a.init;
+            cfg.gt_sample = a.gt_sample;
+            if !(a.size_weight.is_finite() && a.size_weight > 0.0 && a.size_weight <= 100.0) {
+                anyhow::bail!("--size-weight must be in (0, 100], got {}", a.size_weight);
+            }
+            cfg.size_weight = a.size_weight;
+            if let Some(c) = a.checkpoint {
+                cfg.checkpoint = c;
+            }
+            cfg.command = command_line();
+            let bar = ProgressBar::new(cfg.steps);
+            bar.set_style(
+                ProgressStyle::with_template("{bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            let mut ema: Option<f32> = None;
+            let log_every = a.log_every.max(1);
+            let summary = train_stage1(&cfg, |r| {
+                let e = ema.map_or(r.loss, |e| 0.98 * e + 0.02 * r.loss);
+                ema = Some(e);
+                bar.set_position(r.step + 1);
+                bar.set_message(format!("loss {e:.4}"));
+                if (r.step + 1) % log_every == 0 {
+                    bar.suspend(|| {
+                        eprintln!(
+                            "step {} loss {:.4} (ema {e:.4}) cls {:.4} reg {:.4} dir {:.4} pos {} lr {:.2e} |g| {:.2} {:.0} s [data {:.0} fwd {:.0} bwd {:.0} opt {:.0} ms]",
+                            r.step + 1,
+                            r.loss,
+                            r.cls,
+                            r.reg,
+                            r.dir,
+                            r.num_pos,
+                            r.lr,
+                            r.grad_norm,
+                            r.elapsed_s,
+                            r.timing_ms[0],
+                            r.timing_ms[1],
+                            r.timing_ms[2],
+                            r.timing_ms[3]
+                        )
+                    });
+                }
+            })?;
+            bar.finish();
+            println!(
+                "trained {} steps in {:.0} s -> {} (sha256 {})",
+                summary.steps,
+                summary.wall_time_s,
+                summary.out.display(),
+                summary.sha256
+            );
+            Ok(())
+        }
+        TrainCommand::TuneVote(a) => tune_vote(a),
+        TrainCommand::CalibrateTemperature(a) => {
+            let models = a.models.unwrap_or_else(default_models_dir);
+            let temps = calibrate_temperatures(
+                &a.dataset,
+                &models,
+                a.samples,
+                a.iou,
+                &command_line(),
+                |c, k, n| {
+                    if k % 20 == 0 || k == n {
+                        eprintln!("{c}: {k}/{n}");
+                    }
+                },
+            )?;
+            for (c, t) in temps {
+                println!("{c}: T = {t:.4}");
+            }
+            Ok(())
+        }
+    }
+}
+
+/// `mlod train tune-vote`: every candidate on every case over the validation scenes; the best
+/// mean car moderate AP_3D@0.7 wins (plain NMS on a tie) and goes into the manifest atomically.
+fn tune_vote(a: TuneVoteArgs) -> Result<()> {
+    use mlod::detect::weights::{Manifest, VoteTuning};
+    use std::collections::BTreeMap;
+    let models = a.models.clone().unwrap_or_else(default_models_dir);
+    let mut manifest = Manifest::load(&models)?;
+    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let opts = mlod::eval::EvalOptions {
+        samples: a.samples,
+        validation_only: true,
+        ..Default::default()
+    };
+    let tokens = super::eval::evaluated_tokens(&dataset, &a.dataset, &opts)?;
+    let cases = if a.cases.is_empty() {
+        Case::ALL.to_vec()
+    } else {
+        a.cases.clone()
+    };
+    let mut candidates = vec![Voting::Off];
+    for &c in &a.candidates {
+        candidates.push(Voting::iou(c).map_err(anyhow::Error::msg)?);
+    }
+    let mut validation = BTreeMap::new();
+    let mut best: Option<(Voting, f64)> = None;
+    for voting in candidates {
+        let run = DetectorRun {
+            alpha: 0.0,
+            seed: 0,
+            models: Some(models.clone()),
+            vote_iou: voting,
+        };
+        let mut per_case = BTreeMap::new();
+        for &case in &cases {
+            let dets = super::eval::detect_case(&dataset, &tokens, &run, case, &FuseParams::default())?;
+            let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+            let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).with_context(|| {
+                format!("{}: no car of moderate difficulty in the validation scenes", case)
+            })?;
+            eprintln!("vote {voting}: {} {ap:.2}", case.paper_name());
+            per_case.insert(case.to_string(), ap);
+        }
+        let mean = per_case.values().sum::<f64>() / per_case.len() as f64;
+        per_case.insert("mean".to_string(), mean);
+        println!(
+            "vote {voting}: mean car moderate AP_3D@0.7 {mean:.2} over {} samples",
+            tokens.len()
+        );
+        validation.insert(voting.to_string(), per_case);
+        if best.is_none_or(|(_, b)| mean > b) {
+            best = Some((voting, mean));
+        }
+    }
+    let iou = match best {
+        Some((Voting::Iou(v), _)) => Some(v),
+        _ => None,
+    };
+    manifest.vote = Some(VoteTuning {
+        iou,
+        command: command_line(),
+        validation,
+    });
+    manifest.save(&models)?;
+    match iou {
+        Some(v) => println!("chose vote IoU {v} -> {}", models.join(Manifest::FILE).display()),
+        None => println!(
+            "plain NMS stays best -> {}",
+            models.join(Manifest::FILE).display()
+        ),
+    }
+    Ok(())
+}

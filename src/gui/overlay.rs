@@ -1,0 +1,183 @@
+//! What the central panel shows: the viewport, a message while nothing is loaded, and the box
+//! under the pointer with its tooltip (ground truth: size, distance, points and tr(Ξ) inside,
+//! detected or missed; a proposal: score, points, TP/FP with its IoU). Numbers come from the
+//! library (`box_stats`, the matching in [`super::state::DetectionView`]).
+
+use eframe::egui;
+use egui::Color32;
+
+use super::state::Loaded;
+use super::viewport::{self, SceneHandle, Viewport};
+use crate::eval::{GtOutcome, PredOutcome};
+use crate::pipeline::{box_stats, BoxStats};
+use crate::session::Session;
+
+/// What the overlay reads.
+pub struct OverlayInput<'a> {
+    pub loaded: &'a Loaded,
+    pub session: &'a Session,
+    /// Fused-cloud index of each point handed to the scene.
+    pub scene_index: &'a [u32],
+    /// A load is running (the empty viewport says "loading…").
+    pub loading: bool,
+}
+
+/// What happened in the viewport this frame.
+pub struct OverlayOutput {
+    pub rect: egui::Rect,
+    /// The ground-truth box under the pointer (index in the frame) with its statistics.
+    pub hovered_box: Option<(usize, BoxStats)>,
+    /// The proposal under the pointer (index in the detection on screen).
+    pub hovered_detection: Option<usize>,
+    /// A message for a toast (a double-clicked point).
+    pub message: Option<String>,
+}
+
+/// What the pointer is over.
+#[derive(Debug, Clone, Copy)]
+enum Hovered {
+    Truth(usize),
+    Proposal(usize),
+}
+
+/// Draws the viewport and the hover tooltip.
+pub fn show(
+    ui: &mut egui::Ui,
+    view: &mut Viewport,
+    scene: &SceneHandle,
+    input: &OverlayInput<'_>,
+) -> OverlayOutput {
+    let out = viewport::show(ui, view, scene);
+    let mut result = OverlayOutput {
+        rect: out.response.rect,
+        hovered_box: None,
+        hovered_detection: None,
+        message: None,
+    };
+    if input.loaded.frame.is_none() {
+        let msg = if input.loading {
+            "loading…"
+        } else {
+            "no sample loaded — File > Open dataset…"
+        };
+        ui.painter().text(
+            out.response.rect.center(),
+            egui::Align2::CENTER_CENTER,
+            msg,
+            egui::FontId::proportional(18.0),
+            Color32::from_gray(170),
+        );
+    }
+    if let Some(i) = out.picked {
+        if let (Some(cloud), Some(&k)) = (&input.loaded.fused, input.scene_index.get(i)) {
+            let k = k as usize;
+            let ch = cloud
+                .lidars
+                .iter()
+                .find(|l| l.range.contains(&k))
+                .map(|l| l.channel.paper_name())
+                .unwrap_or("?");
+            result.message = Some(format!("focused a {ch} point, tr(Ξ) = {:.4} m²", cloud.trace[k]));
+        }
+    }
+    let Some(pointer) = out.response.hover_pos() else {
+        return result;
+    };
+    let (Some(frame), Some(cloud)) = (&input.loaded.frame, &input.loaded.fused) else {
+        return result;
+    };
+    let rect = out.response.rect;
+    let camera = &view.camera;
+    // The box under the pointer with the smallest screen rectangle; GT and proposals compete.
+    let screen_rect = |corners: [[f64; 3]; 8]| -> Option<egui::Rect> {
+        let pts: Vec<egui::Pos2> = corners
+            .iter()
+            .filter_map(|c| camera.project([c[0] as f32, c[1] as f32, c[2] as f32], rect))
+            .collect();
+        (pts.len() == 8).then(|| egui::Rect::from_points(&pts))
+    };
+    let mut best: Option<(Hovered, f32)> = None;
+    let mut consider = |h: Hovered, r: Option<egui::Rect>| {
+        if let Some(r) = r {
+            if r.contains(pointer) && best.is_none_or(|(_, a)| r.area() < a) {
+                best = Some((h, r.area()));
+            }
+        }
+    };
+    if input.session.show_ground_truth {
+        for (bi, b) in frame.boxes.iter().enumerate() {
+            consider(Hovered::Truth(bi), screen_rect(b.box3d.corners()));
+        }
+    }
+    let settings = input.session.detection;
+    if let Some(d) = input.loaded.detection.as_ref().filter(|_| settings.show) {
+        for (i, det) in d.detections.iter().enumerate() {
+            if det.score >= settings.min_score {
+                consider(Hovered::Proposal(i), screen_rect(det.box3d.corners()));
+            }
+        }
+    }
+    match best {
+        Some((Hovered::Truth(bi), _)) => {
+            let b = &frame.boxes[bi];
+            let stats = box_stats(cloud, &b.box3d);
+            result.hovered_box = Some((bi, stats));
+            let [l, w, h] = b.box3d.size_lwh;
+            let matched = input
+                .loaded
+                .detection
+                .as_ref()
+                .and_then(|d| d.gt_outcomes.get(bi).copied());
+            out.response.on_hover_ui_at_pointer(|ui| {
+                ui.strong(format!("ground truth: {}", b.category));
+                ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
+                ui.label(format!("distance  {:.1} m", b.box3d.bev_range()));
+                ui.label(format!("points inside  {}", stats.points));
+                ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
+                ui.label(format!(
+                    "uncertain (tr Ξ > 0.05)  {:.0} %",
+                    100.0 * stats.uncertain_fraction
+                ));
+                match matched {
+                    Some(GtOutcome::Matched { iou, .. }) => {
+                        ui.label(format!("detected: 3D IoU {iou:.2}"));
+                    }
+                    Some(GtOutcome::Missed) => {
+                        ui.label("missed by the detector");
+                    }
+                    _ => {}
+                }
+            });
+        }
+        Some((Hovered::Proposal(i), _)) => {
+            result.hovered_detection = Some(i);
+            let Some(d) = input.loaded.detection.as_ref() else {
+                return result;
+            };
+            let det = &d.detections[i];
+            let stats = box_stats(cloud, &det.box3d);
+            let [l, w, h] = det.box3d.size_lwh;
+            let outcome = d.outcomes[i];
+            let case = d.case;
+            out.response.on_hover_ui_at_pointer(|ui| {
+                ui.strong(format!("proposal ({}): {}", case.paper_name(), det.category));
+                ui.label(format!("score  {:.3}", det.score));
+                ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
+                ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));
+                ui.label(format!("points inside  {}", stats.points));
+                ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
+                match outcome {
+                    PredOutcome::TruePositive { iou, .. } => {
+                        ui.label(format!("true positive: 3D IoU {iou:.2}"));
+                    }
+                    PredOutcome::FalsePositive { best_iou } => {
+                        ui.label(format!("false positive: best 3D IoU {best_iou:.2}"));
+                    }
+                    PredOutcome::Ignored => {}
+                }
+            });
+        }
+        None => {}
+    }
+    result
+}
