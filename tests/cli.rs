@@ -624,3 +624,98 @@ fn tune_vote_records_its_choice_in_the_manifest() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("(0, 1]"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn export_writes_what_fuse_reports_and_refuses_bad_input() {
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let dir = std::env::temp_dir().join(format!("mlod-cli-export-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fused = json(&[
+        "fuse",
+        "--dataset",
+        data,
+        "--alpha",
+        "0.04",
+        "--seed",
+        "3",
+        "--json",
+    ]);
+    let n = fused["num_points"].as_u64().unwrap() as usize;
+    for (name, cov) in [("c.ply", false), ("c.pcd", true)] {
+        let path = dir.join(name);
+        let mut args = vec![
+            "export",
+            "--dataset",
+            data,
+            "--alpha",
+            "0.04",
+            "--seed",
+            "3",
+            "--out",
+            path.to_str().unwrap(),
+        ];
+        if cov {
+            args.push("--covariance");
+        }
+        let out = mlod(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("{n} points")));
+        let cloud = mlod::export::read_file(&path).unwrap();
+        assert_eq!(cloud.len(), n, "{name}: the points fuse reports");
+        let lo = cloud.trace.iter().copied().fold(f32::INFINITY, f32::min) as f64;
+        let hi = cloud.trace.iter().copied().fold(f32::NEG_INFINITY, f32::max) as f64;
+        assert_eq!(lo, fused["trace_min"].as_f64().unwrap(), "{name}");
+        assert_eq!(hi, fused["trace_max"].as_f64().unwrap(), "{name}");
+        let per_lidar: Vec<usize> = (0..3u8)
+            .map(|l| cloud.lidar.iter().filter(|&&x| x == l).count())
+            .collect();
+        let expected: Vec<usize> = fused["lidars"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| l["num_points"].as_u64().unwrap() as usize)
+            .collect();
+        assert_eq!(per_lidar, expected, "{name}: points per LiDAR");
+        assert_eq!(cloud.covariance.is_some(), cov, "{name}");
+        if let Some(c) = &cloud.covariance {
+            // The diagonal of Ξ sums to tr(Ξ).
+            for (xi, t) in c.iter().zip(&cloud.trace).step_by(997) {
+                let tr = xi[0] + xi[1] + xi[2]; // covariance6 order: xx, yy, zz, xy, xz, yz
+                assert!((tr - t).abs() <= 1e-5 * t.max(1e-3), "{tr} vs {t}");
+            }
+        }
+    }
+    let bad = |args: &[&str], says: &str| {
+        let out = mlod(args);
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    };
+    let txt = dir.join("c.txt");
+    bad(
+        &["export", "--dataset", data, "--out", txt.to_str().unwrap()],
+        "c.txt",
+    );
+    bad(
+        &["export", "--dataset", "/no/such/dataset", "--out", "x.ply"],
+        "/no/such/dataset",
+    );
+    bad(
+        &["export", "--dataset", data, "--sample", "nope", "--out", "x.ply"],
+        "nope",
+    );
+    bad(
+        &["export", "--dataset", data, "--alpha", "-1", "--out", "x.ply"],
+        "alpha",
+    );
+    bad(
+        &["export", "--dataset", data, "--format", "las", "--out", "x.las"],
+        "las",
+    );
+    assert!(
+        !txt.exists() && !std::path::Path::new("x.ply").exists(),
+        "nothing written on error"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
