@@ -1,9 +1,11 @@
-//! Stage-1 detector cost on this CPU (issue 6): inference per sample for each case — fuse,
-//! voxelise, network, decoding and NMS — on a sample_data frame (target ≤ 150 ms on 2 cores), and
-//! one training step (data, forward, backward, AdamW) of Input Fusion; and the network alone,
-//! candle's graph against the folded inference network. Uses the shipped weights
-//! when `assets/models/manifest.json` lists them, else seeded random weights (same cost, but
-//! random weights give few boxes, so decoding/NMS is cheaper than with trained ones).
+//! Detector cost on this CPU: stage-1 inference per sample for each case — fuse, voxelise,
+//! network, decoding and NMS — on a sample_data frame (target ≤ 150 ms on 2 cores), and one
+//! training step (data, forward, backward, AdamW) of Input Fusion; the network alone, candle's
+//! graph against the folded inference network; and stage 2 (issue 17): refining 50 proposals of
+//! the frame — index, gather, sample, network, decode — (target ≤ 30 ms) and a whole MLOD-I run
+//! (target ≤ 150 ms). Uses the shipped weights when `assets/models/manifest.json` lists them,
+//! else seeded random weights (same cost, but random weights give few boxes, so decoding/NMS is
+//! cheaper than with trained ones).
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::detect::model::load_detector;
 use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
@@ -77,5 +79,52 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+fn bench_refine(c: &mut Criterion) {
+    use mlod::refine::net::{RefinerConfig, RefinerNet};
+    use mlod::refine::{Decoding, Refiner};
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).expect("sample_data");
+    let token = ds.first_sample_token().expect("a sample").to_string();
+    let frame = ds.frame(&token).expect("frame");
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).expect("perturbation"),
+        ..Default::default()
+    };
+    let cloud = fuse(&frame, &params).expect("fuse");
+    let refiner = Refiner::load_shipped(&default_models_dir()).unwrap_or_else(|_| {
+        let cfg = RefinerConfig::default();
+        let (_, varmap) = RefinerNet::trainable(&cfg, 1).expect("network");
+        let tensors: std::collections::HashMap<String, candle_core::Tensor> = varmap
+            .data()
+            .lock()
+            .expect("lock")
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect();
+        Refiner::from_tensors(cfg, &|n| tensors.get(n).cloned(), Decoding::default()).expect("refiner")
+    });
+    // 50 proposals: Input Fusion's, topped up with shifted copies when it gives fewer.
+    let mut proposals = detector(Case::Input).detect(&frame, &params).expect("detect");
+    let base = proposals.clone();
+    let mut k = 0;
+    while proposals.len() < 50 && !base.is_empty() {
+        let mut p = base[k % base.len()].clone();
+        p.box3d.center[0] += 0.3 * (1 + k / base.len()) as f64;
+        proposals.push(p);
+        k += 1;
+    }
+    proposals.truncate(50);
+    let mut g = c.benchmark_group("refine");
+    g.sample_size(20);
+    g.bench_function("50_proposals", |b| {
+        b.iter(|| black_box(refiner.refine(&cloud, &proposals).expect("refine")))
+    });
+    if let Ok(mlod_i) = mlod::refine::load_mlod(&default_models_dir(), Case::MlodI, Default::default()) {
+        g.bench_function("mlod-i", |b| {
+            b.iter(|| black_box(mlod_i.run(&frame, &params).expect("run")))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_refine);
 criterion_main!(benches);

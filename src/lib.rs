@@ -14,6 +14,7 @@ pub mod io;
 pub mod lyft;
 pub mod pipeline;
 pub mod plot;
+pub mod refine;
 pub mod session;
 pub mod synth;
 pub mod uncertainty;

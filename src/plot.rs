@@ -135,3 +135,73 @@ pub fn plane_fit_png(rows: &[PlaneFitRow], path: &Path) -> Result<(), PlotError>
     }
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }
+
+/// A histogram of `values` over `range` in `bins` bins, with vertical marks (dashed) at `marks`
+/// and a caption; bars outside the range are counted in the edge bins.
+pub fn histogram_png(
+    values: &[f64],
+    range: (f64, f64),
+    bins: usize,
+    marks: &[f64],
+    caption: &str,
+    x_desc: &str,
+    path: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    let bins = bins.max(1);
+    let (lo, hi) = range;
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        return Err(PlotError::Empty(format!("bad range {lo}..{hi}")));
+    }
+    let mut counts = vec![0usize; bins];
+    for v in values.iter().filter(|v| v.is_finite()) {
+        let k = (((v - lo) / (hi - lo)) * bins as f64)
+            .floor()
+            .clamp(0.0, bins as f64 - 1.0) as usize;
+        counts[k] += 1;
+    }
+    let top = counts.iter().copied().max().unwrap_or(0).max(1) as f64 * 1.1;
+    let (w, h) = (720u32, 440u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(caption, ("sans-serif", 20))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(56)
+            .build_cartesian_2d(lo..hi, 0.0..top)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc("samples")
+            .label_style(("sans-serif", 14))
+            .axis_desc_style(("sans-serif", 16))
+            .draw()
+            .map_err(draw_err)?;
+        let width = (hi - lo) / bins as f64;
+        chart
+            .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+                let x0 = lo + k as f64 * width;
+                Rectangle::new(
+                    [(x0, 0.0), (x0 + width * 0.92, c as f64)],
+                    RGBColor(31, 119, 180).filled(),
+                )
+            }))
+            .map_err(draw_err)?;
+        for &m in marks {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    vec![(m, 0.0), (m, top)],
+                    6,
+                    4,
+                    RGBColor(214, 39, 40).stroke_width(2),
+                ))
+                .map_err(draw_err)?;
+        }
+        root.present().map_err(draw_err)?;
+    }
+    write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
+}

@@ -93,7 +93,7 @@ impl RawHeads {
 /// `c[i·ldc + j] (+)= Σ_p a[i·lda + p] · b[p·ldb + j]` for `i < m`, `j < n`, `p < k`, on one
 /// thread. Returns false (and computes nothing) when a slice is too short for the shape.
 #[allow(clippy::too_many_arguments)]
-fn gemm_rm(
+pub(crate) fn gemm_rm(
     m: usize,
     n: usize,
     k: usize,

@@ -60,6 +60,15 @@ pub enum Case {
     Feature,
     /// Result Fusion: the three single-LiDAR detectors, calibrated, merged by 3D NMS.
     Result,
+    /// MLOD-I: Input Fusion's proposals refined by the stage-2 network (`crate::refine`).
+    #[serde(rename = "mlod-i")]
+    MlodI,
+    /// MLOD-F: Feature Fusion + the refiner.
+    #[serde(rename = "mlod-f")]
+    MlodF,
+    /// MLOD-R: Result Fusion + the refiner.
+    #[serde(rename = "mlod-r")]
+    MlodR,
 }
 
 impl Case {
@@ -72,6 +81,47 @@ impl Case {
         Case::Result,
     ];
 
+    /// The three two-stage cases (paper Table I's MLOD rows).
+    pub const MLOD: [Case; 3] = [Case::MlodI, Case::MlodF, Case::MlodR];
+
+    /// The stage-1 cases and the MLOD cases.
+    pub const EVERY: [Case; 9] = [
+        Case::Top,
+        Case::Left,
+        Case::Right,
+        Case::Input,
+        Case::Feature,
+        Case::Result,
+        Case::MlodI,
+        Case::MlodF,
+        Case::MlodR,
+    ];
+
+    /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case).
+    pub fn stage1(self) -> Case {
+        match self {
+            Case::MlodI => Case::Input,
+            Case::MlodF => Case::Feature,
+            Case::MlodR => Case::Result,
+            c => c,
+        }
+    }
+
+    /// The MLOD case built on this fusion scheme, if any.
+    pub fn refined(self) -> Option<Case> {
+        match self {
+            Case::Input => Some(Case::MlodI),
+            Case::Feature => Some(Case::MlodF),
+            Case::Result => Some(Case::MlodR),
+            _ => None,
+        }
+    }
+
+    /// Whether this case runs the stage-2 refiner.
+    pub fn is_mlod(self) -> bool {
+        Case::MLOD.contains(&self)
+    }
+
     /// The lowercase name used on the command line and in file names.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -81,6 +131,9 @@ impl Case {
             Case::Input => "input",
             Case::Feature => "feature",
             Case::Result => "result",
+            Case::MlodI => "mlod-i",
+            Case::MlodF => "mlod-f",
+            Case::MlodR => "mlod-r",
         }
     }
 
@@ -93,6 +146,9 @@ impl Case {
             Case::Input => "Input Fusion",
             Case::Feature => "Feature Fusion",
             Case::Result => "Result Fusion",
+            Case::MlodI => "MLOD-I",
+            Case::MlodF => "MLOD-F",
+            Case::MlodR => "MLOD-R",
         }
     }
 
@@ -106,9 +162,12 @@ impl Case {
         }
     }
 
-    /// Whether one network is trained for this case (all but Result Fusion).
+    /// Whether one stage-1 network is trained for this case (all single-network stage-1 cases).
     pub fn is_trainable(self) -> bool {
-        self != Case::Result
+        matches!(
+            self,
+            Case::Top | Case::Left | Case::Right | Case::Input | Case::Feature
+        )
     }
 }
 
@@ -141,6 +200,9 @@ pub enum DetectError {
     MissingLidar { sample: String, channel: LidarChannel },
     #[error("bad parameter: {0}")]
     BadParameter(String),
+    /// The stage-2 refiner of an MLOD case could not be loaded or run (its message names the file).
+    #[error("{0}")]
+    Refiner(String),
     #[error("network: {0}")]
     Candle(#[from] candle_core::Error),
     #[error(transparent)]

@@ -486,6 +486,12 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
         }
     };
     Ok(match case {
+        Case::MlodI | Case::MlodF | Case::MlodR => {
+            return Err(DetectError::BadParameter(format!(
+                "{} needs the stage-2 refiner: load it with mlod::refine::load_detector",
+                case.paper_name()
+            )))
+        }
         Case::Result => {
             let mut r = ResultFusion::load_shipped(dir)?;
             if let Some(v) = vote_iou {

@@ -108,3 +108,45 @@ impl AdamW {
         Ok(norm)
     }
 }
+
+impl AdamW {
+    /// The moments as checkpoint tensors (`optim.m.<name>`, `optim.v.<name>`).
+    pub fn state_tensors(&self) -> std::collections::BTreeMap<String, Tensor> {
+        let mut out = std::collections::BTreeMap::new();
+        for (k, (name, _)) in self.params.iter().enumerate() {
+            out.insert(format!("optim.m.{name}"), self.m[k].clone());
+            out.insert(format!("optim.v.{name}"), self.v[k].clone());
+        }
+        out
+    }
+
+    /// Restores the moments saved by [`Self::state_tensors`] and the step count; the name of the
+    /// first missing tensor on failure.
+    pub fn restore(&mut self, get: impl Fn(&str) -> Option<Tensor>, step: u64) -> Result<(), String> {
+        for (k, (name, _)) in self.params.iter().enumerate() {
+            for (moments, key) in [(&mut self.m, "m"), (&mut self.v, "v")] {
+                let n = format!("optim.{key}.{name}");
+                moments[k] = get(&n).ok_or_else(|| format!("tensor {n} missing"))?;
+            }
+        }
+        self.step = step;
+        Ok(())
+    }
+}
+
+/// The rows of a loss-curve CSV (header skipped) whose step, the first column, is before `step`:
+/// what a resumed run keeps (rows written after its checkpoint belong to the lost run).
+pub fn loss_rows_before(csv: &std::path::Path, step: u64) -> Vec<String> {
+    std::fs::read_to_string(csv)
+        .unwrap_or_default()
+        .lines()
+        .skip(1)
+        .filter(|l| {
+            l.split(',')
+                .next()
+                .and_then(|s| s.parse::<u64>().ok())
+                .is_some_and(|s| s < step)
+        })
+        .map(str::to_string)
+        .collect()
+}

@@ -381,11 +381,7 @@ fn save_checkpoint(
     opt: &AdamW,
     ck: &Checkpoint,
 ) -> Result<(), DetectError> {
-    let mut extra = BTreeMap::new();
-    for (k, (name, _)) in opt.params.iter().enumerate() {
-        extra.insert(format!("optim.m.{name}"), opt.m[k].clone());
-        extra.insert(format!("optim.v.{name}"), opt.v[k].clone());
-    }
+    let extra = opt.state_tensors();
     let mut meta = BTreeMap::new();
     meta.insert("train.step".into(), ck.step.to_string());
     meta.insert("train.elapsed_s".into(), format!("{}", ck.elapsed_s));
@@ -447,34 +443,18 @@ fn load_checkpoint(
             var.set(get(name)?)?;
         }
     }
-    for (k, (name, _)) in opt.params.iter().enumerate() {
-        opt.m[k] = get(&format!("optim.m.{name}"))?.clone();
-        opt.v[k] = get(&format!("optim.v.{name}"))?.clone();
-    }
     let step: u64 = w
         .metadata
         .get("train.step")
         .and_then(|s| s.parse().ok())
         .ok_or_else(|| bad("no train.step".into()))?;
-    opt.step = step;
+    opt.restore(|n| w.tensors.get(n).cloned(), step).map_err(bad)?;
     let elapsed_s = w
         .metadata
         .get("train.elapsed_s")
         .and_then(|s| s.parse().ok())
         .unwrap_or(0.0);
-    // Loss rows up to the checkpoint's step (rows written later belong to the lost run).
-    let rows = std::fs::read_to_string(&cfg.loss_csv)
-        .unwrap_or_default()
-        .lines()
-        .skip(1)
-        .filter(|l| {
-            l.split(',')
-                .next()
-                .and_then(|s| s.parse::<u64>().ok())
-                .is_some_and(|s| s < step)
-        })
-        .map(str::to_string)
-        .collect();
+    let rows = super::optim::loss_rows_before(&cfg.loss_csv, step);
     Ok(Checkpoint {
         step,
         elapsed_s,

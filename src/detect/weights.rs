@@ -181,6 +181,27 @@ pub struct Manifest {
     /// Box voting chosen on the validation split (`mlod train tune-vote`); absent: plain NMS.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vote: Option<VoteTuning>,
+    /// The stage-2 refiner of the MLOD cases (`mlod train refiner`), one for all three.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refiner: Option<ModelEntry>,
+    /// How the refiner's output is decoded, chosen on the validation split
+    /// (`mlod train tune-refiner`); absent: the refined score alone, no NMS after refinement.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refine: Option<RefineTuning>,
+}
+
+/// The refiner's decoding and how it was chosen.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RefineTuning {
+    /// How a refined box's score is made: `refined` (the classification head's), `stage1` (the
+    /// proposal's) or `mean` (their geometric mean).
+    pub score: String,
+    /// 3D-IoU NMS after refinement at this IoU; `None`: none.
+    pub nms_iou: Option<f64>,
+    /// The command that chose it.
+    pub command: String,
+    /// Per candidate: car moderate AP_3D@0.7 (%) on the validation scenes per case and their mean.
+    pub validation: BTreeMap<String, BTreeMap<String, f64>>,
 }
 
 /// The box-voting IoU every shipped detector decodes with, and how it was chosen.

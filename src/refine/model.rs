@@ -1,0 +1,422 @@
+//! A trained refiner and the MLOD detectors (MLOD-I/F/R = Input/Feature/Result Fusion followed by
+//! the refiner, paper §IV-B).
+//!
+//! How it works: the stage-1 detector of the case proposes boxes on the frame fused with the
+//! caller's perturbation; the frame is fused again (the same cloud, with tr(Ξ)) and indexed once;
+//! for every proposal of the refiner's category its points are gathered, normalised (eq. 12–13) and
+//! 1024 of them drawn with a generator seeded by the proposal's rank (so a run is reproducible bit
+//! for bit), and the folded network gives an objectness logit and the residuals of eq. 14. The
+//! refined box is the proposal ⊕ residuals; its score is made as the manifest's decoding says
+//! (`refined`: sigmoid of the logit, `stage1`: the proposal's, `mean`: their geometric mean), and
+//! an optional 3D-IoU NMS follows. A proposal without a single point keeps its box and its stage-1
+//! score (the network has nothing to look at). Proposals of other categories pass through.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use candle_core::Tensor;
+
+use super::coding::decode_f32;
+use super::infer::{FastRefiner, RefinerRun};
+use super::net::{proposal_features, RefinerConfig, PROPOSAL_FEATURES};
+use super::points::{gather, sample, CloudIndex};
+use super::RefineError;
+use crate::detect::model::{load_detector_with, Voting};
+use crate::detect::weights::{read_weights, Manifest, RefineTuning};
+use crate::detect::{Case, DetectError, Detection, Detector};
+use crate::geometry::{nms, Box3d, IouKind};
+use crate::lyft::Frame;
+use crate::pipeline::{fuse, FuseParams, FusedCloud};
+
+/// The file name of the shipped refiner in a models folder.
+pub const REFINER_FILE: &str = "refiner.safetensors";
+
+/// Cell of the cloud index, m.
+const INDEX_CELL: f64 = 2.0;
+
+/// How the refined score is made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ScoreRule {
+    Refined,
+    Stage1,
+    Mean,
+}
+
+impl ScoreRule {
+    pub const ALL: [ScoreRule; 3] = [ScoreRule::Refined, ScoreRule::Stage1, ScoreRule::Mean];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ScoreRule::Refined => "refined",
+            ScoreRule::Stage1 => "stage1",
+            ScoreRule::Mean => "mean",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.as_str() == s)
+    }
+
+    fn combine(self, stage1: f32, refined: f32) -> f32 {
+        match self {
+            ScoreRule::Refined => refined,
+            ScoreRule::Stage1 => stage1,
+            ScoreRule::Mean => (stage1.max(0.0) * refined.max(0.0)).sqrt(),
+        }
+    }
+}
+
+/// The refiner's decoding.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decoding {
+    pub score: ScoreRule,
+    /// 3D-IoU NMS after refinement (`None`: none).
+    pub nms_iou: Option<f64>,
+}
+
+impl Default for Decoding {
+    fn default() -> Self {
+        Self {
+            score: ScoreRule::Refined,
+            nms_iou: None,
+        }
+    }
+}
+
+impl Decoding {
+    /// The decoding a manifest records (the default when it records none).
+    pub fn of(t: Option<&RefineTuning>) -> Result<Self, String> {
+        let Some(t) = t else { return Ok(Self::default()) };
+        let score = ScoreRule::parse(&t.score)
+            .ok_or_else(|| format!("refine.score {:?} is not refined, stage1 or mean", t.score))?;
+        if let Some(v) = t.nms_iou {
+            if !(v > 0.0 && v <= 1.0) {
+                return Err(format!("refine.nms_iou {v} is not in (0, 1]"));
+            }
+        }
+        Ok(Self {
+            score,
+            nms_iou: t.nms_iou,
+        })
+    }
+}
+
+/// One refined proposal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refined {
+    /// The refined box, its decoded score and category.
+    pub detection: Detection,
+    /// The proposal it came from (index into the proposals given).
+    pub proposal: usize,
+    /// The classification head's probability (the stage-1 score when unrefined).
+    pub refined_score: f32,
+    /// Fused-cloud indices of the active points: the points that won the max-pool in at least one
+    /// channel (§V-C), distinct, ascending.
+    pub active: Vec<u32>,
+    /// Fused-cloud indices of the points the network was given (the sampled rows), distinct,
+    /// ascending.
+    pub input: Vec<u32>,
+    /// How many points the enlarged box held.
+    pub gathered: usize,
+    /// Whether the network saw no point and the proposal was kept as it was.
+    pub unrefined: bool,
+}
+
+/// A trained stage-2 refiner.
+#[derive(Debug, Clone)]
+pub struct Refiner {
+    pub config: RefinerConfig,
+    pub decoding: Decoding,
+    fast: FastRefiner,
+}
+
+impl Refiner {
+    /// A refiner from its configuration and tensors.
+    pub fn from_tensors(
+        config: RefinerConfig,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+        decoding: Decoding,
+    ) -> Result<Self, RefineError> {
+        Ok(Self {
+            fast: FastRefiner::build(&config, get)?,
+            config,
+            decoding,
+        })
+    }
+
+    /// Loads a weights file (its sha256 checked when given).
+    pub fn load(path: &Path, expected_sha256: Option<&str>, decoding: Decoding) -> Result<Self, RefineError> {
+        let w = read_weights(path, expected_sha256)?;
+        let bad = |what: String| RefineError::File {
+            path: path.to_path_buf(),
+            what,
+        };
+        let cfg = w
+            .metadata
+            .get("mlod.refiner")
+            .ok_or_else(|| bad("no mlod.refiner configuration in its metadata (not a refiner?)".into()))?;
+        let config: RefinerConfig =
+            serde_json::from_str(cfg).map_err(|e| bad(format!("bad mlod.refiner: {e}")))?;
+        Self::from_tensors(config, &|n: &str| w.tensors.get(n).cloned(), decoding)
+            .map_err(|e| bad(e.to_string()))
+    }
+
+    /// The refiner of a models folder, checked against its manifest, with the manifest's decoding.
+    pub fn load_shipped(dir: &Path) -> Result<Self, RefineError> {
+        let manifest = Manifest::load(dir)?;
+        let entry = manifest.refiner.as_ref().ok_or_else(|| RefineError::File {
+            path: dir.join(Manifest::FILE),
+            what: "no refiner: train one with `mlod train refiner`".into(),
+        })?;
+        let decoding = Decoding::of(manifest.refine.as_ref()).map_err(|what| RefineError::File {
+            path: dir.join(Manifest::FILE),
+            what,
+        })?;
+        Self::load(&dir.join(&entry.file), Some(&entry.sha256), decoding)
+    }
+
+    /// Refines `proposals` on `cloud` (boxes in the base frame). The refined boxes come in the
+    /// proposals' order, then the decoding's NMS (if any) drops some; best score first.
+    pub fn refine(&self, cloud: &FusedCloud, proposals: &[Detection]) -> Result<Vec<Refined>, RefineError> {
+        let index = CloudIndex::new(cloud, INDEX_CELL);
+        self.refine_indexed(cloud, &index, proposals)
+    }
+
+    /// [`Self::refine`] with an index the caller built.
+    pub fn refine_indexed(
+        &self,
+        cloud: &FusedCloud,
+        index: &CloudIndex,
+        proposals: &[Detection],
+    ) -> Result<Vec<Refined>, RefineError> {
+        let n = self.config.gather.points;
+        let mine: Vec<usize> = (0..proposals.len())
+            .filter(|&i| proposals[i].category == self.config.category && proposals[i].box3d.is_valid())
+            .collect();
+        // Gather, sample and run in parallel; the sampling seed of proposal i is i.
+        use rayon::prelude::*;
+        let inputs: Vec<Prepared> = mine
+            .par_iter()
+            .map(|&i| {
+                let p = &proposals[i];
+                let pts = gather(cloud, index, &p.box3d, &self.config.gather);
+                let s = sample(&pts, n, i as u64);
+                Prepared {
+                    pick: s.pick.iter().map(|&k| pts.index[k as usize]).collect(),
+                    rows: s.rows,
+                    gathered: pts.len(),
+                    features: proposal_features(&p.box3d, p.score),
+                }
+            })
+            .collect();
+        let runs: Vec<RefinerRun> = inputs
+            .par_iter()
+            .filter(|p| !p.pick.is_empty())
+            .map(|p| self.fast.run(&p.rows, n, &p.features))
+            .collect::<Result<_, _>>()?;
+        let mut runs = runs.into_iter();
+        let mut out = Vec::with_capacity(proposals.len());
+        let mut k_mine = 0;
+        for (i, p) in proposals.iter().enumerate() {
+            if mine.get(k_mine) != Some(&i) {
+                out.push(passthrough(i, p, 0));
+                continue;
+            }
+            let Prepared { pick, gathered, .. } = &inputs[k_mine];
+            k_mine += 1;
+            if pick.is_empty() {
+                out.push(passthrough(i, p, *gathered));
+                continue;
+            }
+            let Some(run) = runs.next() else {
+                return Err(RefineError::Shape(
+                    "fewer network runs than proposals with points".into(),
+                ));
+            };
+            let prob = 1.0 / (1.0 + (-run.logit).exp());
+            let mut active: Vec<u32> = run
+                .argmax
+                .iter()
+                .filter_map(|&r| pick.get(r as usize).copied())
+                .collect();
+            active.sort_unstable();
+            active.dedup();
+            let mut input = pick.clone();
+            input.sort_unstable();
+            input.dedup();
+            out.push(Refined {
+                detection: Detection {
+                    box3d: decode_f32(&p.box3d, &run.residuals),
+                    score: self.decoding.score.combine(p.score, prob),
+                    category: p.category.clone(),
+                },
+                proposal: i,
+                refined_score: prob,
+                active,
+                input,
+                gathered: *gathered,
+                unrefined: false,
+            });
+        }
+        out.sort_by(|a, b| {
+            b.detection
+                .score
+                .total_cmp(&a.detection.score)
+                .then(a.proposal.cmp(&b.proposal))
+        });
+        if let Some(iou) = self.decoding.nms_iou {
+            let boxes: Vec<Box3d> = out.iter().map(|r| r.detection.box3d).collect();
+            let scores: Vec<f32> = out.iter().map(|r| r.detection.score).collect();
+            let keep = nms(&boxes, &scores, iou, IouKind::ThreeD);
+            let keep: std::collections::HashSet<usize> = keep.into_iter().collect();
+            out = out
+                .into_iter()
+                .enumerate()
+                .filter(|(k, _)| keep.contains(k))
+                .map(|(_, r)| r)
+                .collect();
+        }
+        Ok(out)
+    }
+}
+
+/// The refined detections of a run decoded another way (`run` made with any decoding): each
+/// refined box's score made again from its proposal's and the head's probability, then the NMS.
+/// What `mlod train tune-refiner` compares without running the network again.
+pub fn redecode(run: &MlodRun, d: Decoding) -> Vec<Detection> {
+    let mut dets: Vec<Detection> = run
+        .refined
+        .iter()
+        .map(|r| {
+            let stage1 = run.proposals.get(r.proposal).map_or(r.refined_score, |p| p.score);
+            Detection {
+                score: if r.unrefined {
+                    stage1
+                } else {
+                    d.score.combine(stage1, r.refined_score)
+                },
+                ..r.detection.clone()
+            }
+        })
+        .collect();
+    dets.sort_by(|a, b| b.score.total_cmp(&a.score));
+    if let Some(iou) = d.nms_iou {
+        let boxes: Vec<Box3d> = dets.iter().map(|x| x.box3d).collect();
+        let scores: Vec<f32> = dets.iter().map(|x| x.score).collect();
+        let mut keep = nms(&boxes, &scores, iou, IouKind::ThreeD);
+        keep.sort_unstable();
+        dets = keep.into_iter().map(|k| dets[k].clone()).collect();
+        dets.sort_by(|a, b| b.score.total_cmp(&a.score));
+    }
+    dets
+}
+
+/// A proposal's sampled points, ready for the network.
+struct Prepared {
+    /// Fused-cloud index of each sampled row (empty: no point).
+    pick: Vec<u32>,
+    rows: Vec<f32>,
+    gathered: usize,
+    features: [f32; PROPOSAL_FEATURES],
+}
+
+fn passthrough(i: usize, p: &Detection, gathered: usize) -> Refined {
+    Refined {
+        detection: p.clone(),
+        proposal: i,
+        refined_score: p.score,
+        active: Vec::new(),
+        input: Vec::new(),
+        gathered,
+        unrefined: true,
+    }
+}
+
+/// Proposals and their refinements of one frame.
+#[derive(Debug, Clone)]
+pub struct MlodRun {
+    /// Stage 1's boxes, highest score first.
+    pub proposals: Vec<Detection>,
+    /// The refined boxes, highest score first, each linked to its proposal.
+    pub refined: Vec<Refined>,
+    /// The fused cloud both saw.
+    pub cloud: FusedCloud,
+}
+
+/// An MLOD case: a fusion detector followed by the refiner.
+pub struct Mlod {
+    case: Case,
+    stage1: Box<dyn Detector>,
+    refiner: Arc<Refiner>,
+}
+
+impl Mlod {
+    pub fn new(case: Case, stage1: Box<dyn Detector>, refiner: Arc<Refiner>) -> Self {
+        Self {
+            case,
+            stage1,
+            refiner,
+        }
+    }
+
+    /// The refiner it runs.
+    pub fn refiner(&self) -> &Refiner {
+        &self.refiner
+    }
+
+    /// Proposals, refinements and the cloud of one frame.
+    pub fn run(&self, frame: &Frame, params: &FuseParams) -> Result<MlodRun, DetectError> {
+        let proposals = self.stage1.detect(frame, params)?;
+        let cloud = fuse(frame, params)?;
+        let refined = self
+            .refiner
+            .refine(&cloud, &proposals)
+            .map_err(|e| DetectError::Refiner(e.to_string()))?;
+        Ok(MlodRun {
+            proposals,
+            refined,
+            cloud,
+        })
+    }
+}
+
+impl Detector for Mlod {
+    fn case(&self) -> Case {
+        self.case
+    }
+
+    fn categories(&self) -> Vec<String> {
+        self.stage1.categories()
+    }
+
+    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
+        Ok(self
+            .run(frame, params)?
+            .refined
+            .into_iter()
+            .map(|r| r.detection)
+            .collect())
+    }
+}
+
+/// The shipped detector of any case (stage 1, or MLOD with the folder's refiner), decoding as the
+/// manifest says, with the caller's box voting in stage 1.
+pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn Detector>, DetectError> {
+    if !case.is_mlod() {
+        return load_detector_with(dir, case, voting);
+    }
+    Ok(Box::new(load_mlod(dir, case, voting)?))
+}
+
+/// An MLOD case of a models folder (its stage-1 detector and the folder's refiner).
+pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectError> {
+    if !case.is_mlod() {
+        return Err(DetectError::BadParameter(format!(
+            "{} is not an MLOD case",
+            case.paper_name()
+        )));
+    }
+    let stage1 = load_detector_with(dir, case.stage1(), voting)?;
+    let refiner = Refiner::load_shipped(dir).map_err(|e| DetectError::Refiner(e.to_string()))?;
+    Ok(Mlod::new(case, stage1, Arc::new(refiner)))
+}
