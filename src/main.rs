@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cli;
 
-use cli::{data, detect, eval, export, table1, train, uncertainty, window};
+use cli::{analyze, data, detect, eval, export, table1, train, uncertainty, window};
 
 #[derive(Parser)]
 #[command(
@@ -51,7 +51,8 @@ enum Command {
     /// Run the plane-fitting experiment of paper §III-C / Fig. 2; writes plane_fit.csv and plane_fit.png.
     #[command(after_help = cli::PLANE_FIT_EXAMPLES)]
     PlaneFit(uncertainty::PlaneFitArgs),
-    /// Train the stage-1 detectors, calibrate Result Fusion's temperatures, tune box voting.
+    /// Train the stage-1 detectors and the refiner, calibrate Result Fusion's temperatures, tune
+    /// box voting.
     #[command(subcommand, after_help = cli::TRAIN_EXAMPLES)]
     Train(train::TrainCommand),
     /// Run a stage-1 detector (shipped weights) on one sample and print its boxes.
@@ -65,6 +66,9 @@ enum Command {
     /// easy/moderate/hard at IoU 0.7 and 0.5, as a Markdown table (and JSON with --out).
     #[command(after_help = cli::TABLE1_EXAMPLES)]
     Table1(table1::Table1Args),
+    /// Analyses of the refiner: its active points (§V-C, Fig. 5).
+    #[command(subcommand, after_help = cli::ANALYZE_EXAMPLES)]
+    Analyze(analyze::AnalyzeCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -106,5 +110,6 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Detect(a)) => detect::detect(a),
         Some(Command::Eval(a)) => eval::eval_cmd(a),
         Some(Command::Table1(a)) => table1::table1_cmd(a),
+        Some(Command::Analyze(c)) => analyze::analyze(c),
     }
 }

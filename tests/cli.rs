@@ -719,3 +719,84 @@ fn export_writes_what_fuse_reports_and_refuses_bad_input() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn mlod_cases_without_or_with_a_corrupt_refiner_fail_naming_the_file() {
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models");
+    let dir = std::env::temp_dir().join(format!("mlod-cli-refiner-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for f in ["input.safetensors", "manifest.json"] {
+        std::fs::copy(shipped.join(f), dir.join(f)).unwrap();
+    }
+    // The manifest without a refiner: an error naming manifest.json and saying what to do.
+    let mut m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
+    m.as_object_mut().unwrap().remove("refiner");
+    m.as_object_mut().unwrap().remove("refine");
+    std::fs::write(dir.join("manifest.json"), serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+    let models = dir.to_str().unwrap();
+    let out = mlod(&[
+        "detect",
+        "--dataset",
+        data,
+        "--case",
+        "mlod-i",
+        "--models",
+        models,
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("manifest.json") && err.contains("mlod train refiner"),
+        "{err}"
+    );
+    // A refiner entry whose file is garbage: an error naming the file.
+    std::fs::write(dir.join("refiner.safetensors"), b"not a safetensors file").unwrap();
+    m["refiner"] = serde_json::json!({
+        "file": "refiner.safetensors", "sha256": mlod::detect::weights::sha256_hex(b"not a safetensors file"),
+        "command": "mlod train refiner", "seed": 0, "steps": 1, "wall_time_s": 0.0
+    });
+    std::fs::write(dir.join("manifest.json"), serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+    let out = mlod(&[
+        "eval",
+        "--dataset",
+        data,
+        "--case",
+        "mlod-i",
+        "--models",
+        models,
+        "--samples",
+        "1",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("refiner.safetensors") && !err.contains("panicked"),
+        "{err}"
+    );
+    // A stage-1 case still runs from that folder, and analyze refuses a stage-1 case.
+    let out = mlod(&[
+        "detect",
+        "--dataset",
+        data,
+        "--case",
+        "input",
+        "--models",
+        models,
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = mlod(&[
+        "analyze",
+        "active-points",
+        "--dataset",
+        data,
+        "--case",
+        "input",
+        "--out",
+        models,
+    ]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("MLOD case"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 
-use mlod::detect::model::{load_detector_with, Voting};
+use mlod::detect::model::Voting;
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, Detection};
 use mlod::pipeline::FuseParams;
@@ -36,7 +36,11 @@ pub struct DetectorRun {
 impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
-        Ok(load_detector_with(&self.models_dir(), case, self.vote_iou)?)
+        Ok(mlod::refine::load_detector(
+            &self.models_dir(),
+            case,
+            self.vote_iou,
+        )?)
     }
 
     /// The models folder asked for, or the shipped one.

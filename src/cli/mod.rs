@@ -1,11 +1,13 @@
 //! The `mlod` subcommands, one file per subcommand or group; `main.rs` parses and dispatches.
 //! Every command takes its data from the library and only formats it (text, JSON, CSV, PNG).
 
+pub mod analyze;
 pub mod args;
 pub mod data;
 pub mod detect;
 pub mod eval;
 pub mod export;
+pub mod refine;
 pub mod table1;
 pub mod train;
 pub mod uncertainty;
@@ -68,6 +70,8 @@ Examples:
 
 pub const TRAIN_EXAMPLES: &str = "\
 Examples:
+  mlod train proposals --dataset data/train --out data/proposals --draws 2 --seed 0
+  mlod train refiner --dataset data/train --proposals data/proposals --out assets/models/refiner.safetensors --steps 3000 --seed 0
   mlod train stage1 --case top --dataset data/train --out M/top.safetensors --steps 4000 --seed 1
   mlod train stage1 --case top --dataset data/train --out M/top.safetensors --steps 4000 --seed 1 --resume
   mlod train calibrate-temperature --dataset data/train --models M
@@ -89,3 +93,7 @@ Examples:
   mlod table1 --dataset data/test                        all six cases, α = 0
   mlod table1 --dataset data/test --cases top,input --attribution --recall-bands 10,20,30,50
   mlod table1 --dataset data/train --validation --vote-iou off";
+
+pub const ANALYZE_EXAMPLES: &str = "\
+Examples:
+  mlod analyze active-points --dataset data/test --case mlod-i --alpha 0.1 --seed 0 --out out/active";

@@ -13,7 +13,8 @@ pub struct Table1Args {
     /// A Lyft-format dataset (the held-out test split).
     #[arg(long)]
     dataset: PathBuf,
-    /// Only these cases (comma separated; default: all six).
+    /// Only these cases (comma separated; default: the six stage-1 cases, and MLOD-I/F/R when the
+    /// models folder has a refiner).
     #[arg(long, value_delimiter = ',')]
     cases: Vec<mlod::detect::Case>,
     /// Evaluate only the first N samples.
@@ -65,7 +66,13 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
     let models = args.run.models_dir();
     let params = args.run.fuse_params()?;
     let cases = if args.cases.is_empty() {
-        Case::ALL.to_vec()
+        // The MLOD rows join when the models folder has a refiner.
+        let refiner = mlod::detect::Manifest::load(&models).is_ok_and(|m| m.refiner.is_some());
+        if refiner {
+            Case::EVERY.to_vec()
+        } else {
+            Case::ALL.to_vec()
+        }
     } else {
         args.cases.clone()
     };
@@ -192,6 +199,17 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
     if args.update_manifest {
         let mut manifest = mlod::detect::Manifest::load(&models)?;
         for (case, figures) in &rows {
+            if case.is_mlod() {
+                if let Some(entry) = manifest.refiner.as_mut() {
+                    for (k, v) in figures {
+                        match v {
+                            Some(v) => entry.test_ap.insert(format!("{case}/{k}"), *v),
+                            None => entry.test_ap.remove(&format!("{case}/{k}")),
+                        };
+                    }
+                }
+                continue;
+            }
             if let Some(entry) = manifest.models.get_mut(case) {
                 entry.test_ap = figures
                     .iter()

@@ -24,6 +24,14 @@ pub enum TrainCommand {
     /// candidate, by the mean car moderate AP_3D@0.7 over the cases) and record it, with every
     /// candidate's figures, in the models' manifest.json.
     TuneVote(TuneVoteArgs),
+    /// Build the refiner's proposal database: the stage-1 fusion detectors run once over the
+    /// training scenes under injected perturbations (resumable, shard by shard).
+    Proposals(super::refine::ProposalsArgs),
+    /// Train the stage-2 refiner (MLOD) on a proposal database; resumable, deterministic per seed.
+    Refiner(super::refine::RefinerArgs),
+    /// Choose how the refiner's output is decoded (score rule, NMS after refinement) on the
+    /// validation split and record it in the models' manifest.json.
+    TuneRefiner(super::refine::TuneRefinerArgs),
 }
 
 #[derive(clap::Args)]
@@ -108,12 +116,19 @@ pub struct CalibrateArgs {
     iou: f64,
 }
 
+/// The command line as a user types it: `mlod` and the arguments (not the binary's path).
 fn command_line() -> String {
-    std::env::args().collect::<Vec<_>>().join(" ")
+    std::iter::once("mlod".to_string())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 pub fn train(cmd: TrainCommand) -> Result<()> {
     match cmd {
+        TrainCommand::Proposals(a) => super::refine::proposals(a),
+        TrainCommand::Refiner(a) => super::refine::refiner(a, command_line()),
+        TrainCommand::TuneRefiner(a) => super::refine::tune_refiner(a, command_line()),
         TrainCommand::Stage1(a) => {
             let mut cfg = TrainConfig::new(a.case, a.dataset, a.out);
             cfg.steps = a.steps;

@@ -1,0 +1,245 @@
+//! `mlod train proposals` and `mlod train refiner`: the stage-2 refiner's proposal database and
+//! its training (paper §IV-B, §V-A-6).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use mlod::detect::weights::default_models_dir;
+use mlod::detect::Case;
+use mlod::refine::proposals::{build, DatabaseConfig};
+use mlod::refine::train::{train_refiner, RefineTrainConfig};
+
+#[derive(clap::Args)]
+pub struct ProposalsArgs {
+    /// The training dataset (its validation scenes are left out).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Output folder of the database (shard-*.json); an existing one is completed, not redone.
+    #[arg(long)]
+    out: PathBuf,
+    /// Models folder of the stage-1 detectors (default: assets/models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// The stage-1 cases whose proposals are kept (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "input,feature,result")]
+    cases: Vec<Case>,
+    /// Perturbation draws per training sample.
+    #[arg(long, default_value_t = 2)]
+    draws: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Share of draws at α = 0 (the rest: α ∈ {0.02, 0.04, 0.06, 0.08, 0.1}).
+    #[arg(long, default_value_t = 0.4)]
+    zero_share: f64,
+    /// At most this many training samples (0: all).
+    #[arg(long, default_value_t = 0)]
+    max_samples: usize,
+}
+
+#[derive(clap::Args)]
+pub struct RefinerArgs {
+    /// The training dataset the database was built from.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// The proposal database (`mlod train proposals --out`).
+    #[arg(long)]
+    proposals: PathBuf,
+    /// Final weights file; its folder's manifest.json gets the `refiner` entry.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 3000)]
+    steps: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Peak learning rate (AdamW; warm-up then cosine decay).
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Proposals per step.
+    #[arg(long, default_value_t = 32)]
+    batch: usize,
+    /// Points per proposal.
+    #[arg(long, default_value_t = 1024)]
+    points: usize,
+    /// Also feed the points' intensity and source LiDAR (besides x_n, y_n, z_n and tr(Ξ)).
+    #[arg(long)]
+    extra_features: bool,
+    /// Leave tr(Ξ) out of the point features (an ablation: the network then cannot see it).
+    #[arg(long)]
+    no_trace: bool,
+    /// Continue from the checkpoint (<out>.ckpt.safetensors) after a kill.
+    #[arg(long)]
+    resume: bool,
+    /// Seconds between checkpoints.
+    #[arg(long, default_value_t = 120.0)]
+    checkpoint_every: f64,
+    /// Print a loss line every N steps.
+    #[arg(long, default_value_t = 50)]
+    log_every: u64,
+}
+
+pub fn proposals(a: ProposalsArgs) -> Result<()> {
+    let cfg = DatabaseConfig {
+        dataset: a.dataset,
+        models: a.models.unwrap_or_else(default_models_dir),
+        out: a.out.clone(),
+        cases: a.cases,
+        draws: a.draws.max(1),
+        seed: a.seed,
+        zero_share: a.zero_share,
+        max_samples: a.max_samples,
+    };
+    let start = std::time::Instant::now();
+    let n = build(&cfg, |done, total| {
+        eprintln!("shard {done}/{total}  {:.0} s", start.elapsed().as_secs_f64());
+    })
+    .with_context(|| format!("building the proposal database in {}", a.out.display()))?;
+    eprintln!(
+        "{n} entries in {} ({:.0} s)",
+        a.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+pub fn refiner(a: RefinerArgs, command: String) -> Result<()> {
+    let mut cfg = RefineTrainConfig::new(a.dataset, a.proposals, a.out);
+    cfg.steps = a.steps;
+    cfg.seed = a.seed;
+    cfg.lr = a.lr;
+    cfg.batch = a.batch;
+    cfg.positives = a.batch.div_ceil(2);
+    cfg.resume = a.resume;
+    cfg.checkpoint_every_s = a.checkpoint_every;
+    cfg.model.gather.points = a.points;
+    cfg.model.gather.features.trace = !a.no_trace;
+    cfg.model.gather.features.intensity = a.extra_features;
+    cfg.model.gather.features.lidar = a.extra_features;
+    cfg.command = command;
+    let every = a.log_every.max(1);
+    let s = train_refiner(&cfg, |r| {
+        if r.step % every == 0 {
+            eprintln!(
+                "step {:>6}  loss {:.4}  reg {:.4}  cls {:.4}  uct {:.3}  pos {:>2}/{:>2}  lr {:.2e}  {:.0} s",
+                r.step, r.loss, r.reg, r.cls, r.uct, r.positives, r.batch, r.lr, r.elapsed_s
+            );
+        }
+    })?;
+    eprintln!(
+        "wrote {} after {} steps ({} skipped), final loss {:.4}, {:.0} s, sha256 {}",
+        s.out.display(),
+        s.steps,
+        s.skipped,
+        s.final_loss,
+        s.wall_time_s,
+        s.sha256
+    );
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct TuneRefinerArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with the refiner (default: assets/models); its manifest records the choice.
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// The perturbation levels scored (one draw each, seed --seed).
+    #[arg(long, value_delimiter = ',', default_value = "0,0.04,0.1")]
+    alphas: Vec<f64>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// NMS IoUs tried after refinement besides none (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "0.1,0.3")]
+    nms: Vec<f64>,
+    /// At most this many validation samples.
+    #[arg(long)]
+    samples: Option<usize>,
+}
+
+/// `mlod train tune-refiner`: MLOD-I/F/R over the validation scenes at each α, every decoding
+/// (score rule × NMS) scored on the same runs; the best mean car moderate AP_3D@0.7 wins (the
+/// refined score without NMS on a tie) and goes into the manifest atomically.
+pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
+    use mlod::detect::model::Voting;
+    use mlod::detect::weights::{Manifest, RefineTuning};
+    use mlod::refine::{load_mlod, redecode, Decoding, ScoreRule};
+    use rayon::prelude::*;
+    use std::collections::{BTreeMap, HashMap};
+    let models = a.models.clone().unwrap_or_else(default_models_dir);
+    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let opts = mlod::eval::EvalOptions {
+        samples: a.samples,
+        validation_only: true,
+        ..Default::default()
+    };
+    let tokens = super::eval::evaluated_tokens(&dataset, &a.dataset, &opts)?;
+    let mut candidates = Vec::new();
+    for score in ScoreRule::ALL {
+        candidates.push(Decoding { score, nms_iou: None });
+        for &v in &a.nms {
+            if !(v > 0.0 && v <= 1.0) {
+                anyhow::bail!("--nms {v} is not an IoU in (0, 1]");
+            }
+            candidates.push(Decoding {
+                score,
+                nms_iou: Some(v),
+            });
+        }
+    }
+    let name = |d: &Decoding| match d.nms_iou {
+        Some(v) => format!("{}+nms{v}", d.score.as_str()),
+        None => d.score.as_str().to_string(),
+    };
+    let mut validation: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    for case in Case::MLOD {
+        let mlod_det = load_mlod(&models, case, Voting::Manifest)?;
+        for &alpha in &a.alphas {
+            let params = mlod::pipeline::FuseParams {
+                perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
+                ..Default::default()
+            };
+            let runs: Vec<(String, mlod::refine::MlodRun)> = tokens
+                .par_iter()
+                .map(|t| -> Result<_> { Ok((t.clone(), mlod_det.run(&dataset.frame(t)?, &params)?)) })
+                .collect::<Result<_>>()?;
+            for d in &candidates {
+                let dets: HashMap<String, Vec<mlod::detect::Detection>> =
+                    runs.iter().map(|(t, r)| (t.clone(), redecode(r, *d))).collect();
+                let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+                let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).unwrap_or(0.0);
+                eprintln!("{} α {alpha} {}: {ap:.2}", case.paper_name(), name(d));
+                validation
+                    .entry(name(d))
+                    .or_default()
+                    .insert(format!("{case}@{alpha}"), ap);
+            }
+        }
+    }
+    let mut best: Option<(Decoding, f64)> = None;
+    for d in &candidates {
+        let per = validation.entry(name(d)).or_default();
+        let mean = per.values().sum::<f64>() / per.len().max(1) as f64;
+        per.insert("mean".into(), mean);
+        println!("{:<16} mean car moderate AP_3D@0.7 {mean:.2}", name(d));
+        if best.is_none_or(|(_, b)| mean > b) {
+            best = Some((*d, mean));
+        }
+    }
+    let (d, mean) = best.context("no candidate")?;
+    let mut manifest = Manifest::load(&models)?;
+    manifest.refine = Some(RefineTuning {
+        score: d.score.as_str().to_string(),
+        nms_iou: d.nms_iou,
+        command,
+        validation,
+    });
+    manifest.save(&models)?;
+    println!(
+        "chose {} ({mean:.2}) -> {}",
+        name(&d),
+        models.join(Manifest::FILE).display()
+    );
+    Ok(())
+}
