@@ -53,7 +53,7 @@ pub struct Session {
     pub show_ground_truth: bool,
     /// Point size in UI points.
     pub point_size: f32,
-    /// Stage-1 detection settings (what the Detection panel shows).
+    /// Detection settings (what the Detection panel shows).
     #[serde(default)]
     pub detection: DetectionSettings,
 }
@@ -62,7 +62,7 @@ pub struct Session {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DetectionSettings {
-    /// Which stage-1 case the Run button runs.
+    /// Which case the Run button runs (a stage-1 case or MLOD-I/F/R).
     pub case: Case,
     /// Run the detector again after every change of sample or perturbation.
     pub auto_run: bool,
@@ -70,7 +70,12 @@ pub struct DetectionSettings {
     pub min_score: f32,
     /// 3D IoU a proposal needs to count as a true positive.
     pub match_iou: f64,
+    /// Draw stage 1's boxes (an MLOD case's proposals).
     pub show: bool,
+    /// Draw an MLOD case's refined boxes and the lines joining them to their proposals.
+    pub show_refined: bool,
+    /// Highlight the active points (§V-C) of the hovered or selected refined box.
+    pub show_active: bool,
 }
 
 impl Default for DetectionSettings {
@@ -81,6 +86,8 @@ impl Default for DetectionSettings {
             min_score: 0.3,
             match_iou: 0.7,
             show: true,
+            show_refined: true,
+            show_active: false,
         }
     }
 }
@@ -269,6 +276,24 @@ mod tests {
             Session::load(&path).unwrap().detection,
             DetectionSettings::default()
         );
+        // An MLOD case and the layer toggles round-trip; a file from before the refiner existed
+        // (no show_refined / show_active) loads with their defaults.
+        let mut m = s.clone();
+        m.detection.case = Case::MlodI;
+        m.detection.show_refined = false;
+        m.detection.show_active = true;
+        m.save(&path).unwrap();
+        assert!(std::fs::read_to_string(&path).unwrap().contains("\"mlod-i\""));
+        assert_eq!(Session::load(&path).unwrap(), m);
+        let mut v = serde_json::to_value(&s).unwrap();
+        let d = v["detection"].as_object_mut().unwrap();
+        d.remove("show_refined");
+        d.remove("show_active");
+        d.insert("case".into(), "feature".into());
+        std::fs::write(&path, v.to_string()).unwrap();
+        let old = Session::load(&path).unwrap().detection;
+        assert_eq!(old.case, Case::Feature);
+        assert!(old.show_refined && !old.show_active);
         assert!(Session::load(&dir.join("missing.json"))
             .unwrap_err()
             .to_string()

@@ -1,14 +1,30 @@
 //! The whole debugger driven headlessly (egui_kittest on wgpu; lavapipe with
 //! `WGPU_BACKEND=vulkan` in CI): snapshots of the main states, the α slider moving the fused cloud
-//! and the legend, and a session round trip that reproduces identical pixels.
+//! and the legend, a session round trip that reproduces identical pixels, stage-1 detection, and
+//! MLOD-I (proposals, refinements and ground truth on screen, counted as `mlod eval` counts,
+//! active points, a missing refiner).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use egui::accesskit::Role;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use mlod::color::ColorMode;
-use mlod::detect::Case;
+use mlod::detect::model::Voting;
+use mlod::detect::{Case, Detection, Manifest};
+use mlod::eval::{evaluate_detections, EvalOptions, GtOutcome, MatchRule, PredOutcome};
+use mlod::geometry::IouKind;
 use mlod::gui::viewport::View;
-use mlod::gui::{default_dataset, AppOptions, MlodApp};
+use mlod::gui::{
+    default_dataset, AppOptions, MlodApp, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR,
+    REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR,
+};
+use mlod::lyft::Dataset;
+use mlod::refine::load_mlod;
+use mlod::refine::proposals::DatabaseConfig;
+use mlod::refine::train::{train_refiner, RefineTrainConfig};
 use mlod::session::Session;
 use mlod::uncertainty::Perturbation;
 
@@ -290,6 +306,363 @@ fn missing_weights_are_an_error_and_keep_the_cloud() {
     );
 }
 
+/// The models folder of the MLOD tests: `assets/models` once it ships a refiner; until then a
+/// copy of the stage-1 weights with a tiny refiner trained on two samples (three steps), made once
+/// per test run.
+fn mlod_models() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let shipped = assets_models();
+        if Manifest::load(&shipped).unwrap().refiner.is_some() {
+            return shipped;
+        }
+        let dir = std::env::temp_dir().join(format!("mlod-gui-refiner-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let models = stage1_copy(&dir.join("models"));
+        let db = dir.join("db");
+        mlod::refine::proposals::build(
+            &DatabaseConfig {
+                dataset: default_dataset(),
+                models: shipped,
+                out: db.clone(),
+                cases: vec![Case::Input],
+                draws: 1,
+                seed: 3,
+                zero_share: 0.5,
+                max_samples: 2,
+            },
+            |_, _| {},
+        )
+        .unwrap();
+        let mut cfg = RefineTrainConfig::new(default_dataset(), db, models.join("refiner.safetensors"));
+        cfg.batch = 8;
+        cfg.positives = 4;
+        cfg.model.gather.points = 128;
+        cfg.model.point_mlp = vec![16, 32];
+        cfg.model.head = vec![32];
+        cfg.model.proposal_width = 8;
+        cfg.warmup = 1;
+        cfg.lr = 3e-3;
+        cfg.steps = 3;
+        cfg.seed = 1;
+        cfg.checkpoint_every_s = 1e9;
+        train_refiner(&cfg, |_| {}).unwrap();
+        assert!(Manifest::load(&models).unwrap().refiner.is_some());
+        // The database and the checkpoint are not needed any more (the weights stay for the run).
+        let _ = std::fs::remove_dir_all(&cfg.proposals);
+        let _ = std::fs::remove_file(&cfg.checkpoint);
+        models
+    })
+    .clone()
+}
+
+fn assets_models() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models")
+}
+
+/// `dir` with the shipped stage-1 weights and their manifest, without a refiner.
+fn stage1_copy(dir: &Path) -> PathBuf {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut m = Manifest::load(&assets_models()).unwrap();
+    for e in m.models.values() {
+        std::fs::copy(assets_models().join(&e.file), dir.join(&e.file)).unwrap();
+    }
+    m.refiner = None;
+    m.refine = None;
+    m.save(dir).unwrap();
+    dir.to_path_buf()
+}
+
+/// Pixels of the viewport in any of `colors` (exactly: lines are opaque).
+fn count_pixels(img: &image::RgbaImage, rect: egui::Rect, colors: &[[u8; 4]]) -> usize {
+    let scale = img.width() as f32 / 1280.0;
+    let (x0, y0) = ((rect.min.x * scale) as u32, (rect.min.y * scale) as u32);
+    let (x1, y1) = (
+        ((rect.max.x * scale) as u32).min(img.width()),
+        ((rect.max.y * scale) as u32).min(img.height()),
+    );
+    let mut n = 0;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let p = img.get_pixel(x, y).0;
+            n += colors.iter().any(|c| c[..3] == p[..3]) as usize;
+        }
+    }
+    n
+}
+
+fn mlod_session(alpha: f64, mode: ColorMode) -> Session {
+    let mut s = session_at(alpha, mode);
+    s.detection.case = Case::MlodI;
+    s
+}
+
+#[test]
+fn run_with_mlod_i_draws_proposals_refinements_and_ground_truth_counted_like_eval() {
+    let models = mlod_models();
+    let mut h = harness_with(Some(mlod_session(0.04, ColorMode::Trace)), Some(models.clone()));
+    h.state_mut().set_preset(View::Bev);
+    h.run_steps(2);
+    let rect = h.state().hover_state().0;
+    const BLUE: [[u8; 4]; 2] = [PROPOSAL_COLOR, FALSE_POSITIVE_COLOR];
+    const RED: [[u8; 4]; 2] = [REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR];
+    let before = h.render().unwrap();
+    let (blue0, red0) = (
+        count_pixels(&before, rect, &BLUE),
+        count_pixels(&before, rect, &RED),
+    );
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let (view, counts) = h.state().detection().expect("MLOD-I ran");
+    assert_eq!(view.case, Case::MlodI);
+    let refinement = view
+        .refinement
+        .as_ref()
+        .expect("an MLOD run holds its refinements");
+    assert!(!view.detections.is_empty() && !refinement.refined.is_empty());
+
+    // The library on the same frame and perturbation gives the same proposals and refinements.
+    let token = h.state().frame().unwrap().sample_token.clone();
+    let settings = h.state().session().detection;
+    let run = load_mlod(&models, Case::MlodI, Voting::Manifest)
+        .unwrap()
+        .run(h.state().frame().unwrap(), &h.state().session().fuse)
+        .unwrap();
+    assert_eq!(run.proposals, view.detections);
+    assert_eq!(run.refined, refinement.refined);
+    // The counts are those of the evaluation's per-box matching of the drawn refined boxes (score
+    // ≥ min score) at the panel's match IoU, no range limit.
+    let drawn: Vec<Detection> = run
+        .refined
+        .iter()
+        .map(|r| r.detection.clone())
+        .filter(|d| d.score >= settings.min_score)
+        .collect();
+    let dataset = Dataset::open(default_dataset()).unwrap();
+    let opts = EvalOptions {
+        per_box: Some(MatchRule {
+            iou_threshold: settings.match_iou,
+            kind: IouKind::ThreeD,
+            max_range: f64::INFINITY,
+        }),
+        ..Default::default()
+    };
+    let report =
+        evaluate_detections(&dataset, &HashMap::from([(token.clone(), drawn.clone())]), &opts).unwrap();
+    let sample = report
+        .per_box
+        .unwrap()
+        .into_iter()
+        .find(|s| s.sample_token == token)
+        .unwrap();
+    let tp = sample
+        .preds
+        .iter()
+        .filter(|p| matches!(p.outcome, PredOutcome::TruePositive { .. }))
+        .count();
+    let fp = sample
+        .preds
+        .iter()
+        .filter(|p| matches!(p.outcome, PredOutcome::FalsePositive { .. }))
+        .count();
+    let missed = sample
+        .gts
+        .iter()
+        .filter(|g| view.categories.contains(&g.category) && matches!(g.outcome, GtOutcome::Missed))
+        .count();
+    assert_eq!(counts.shown, drawn.len());
+    assert_eq!(
+        (counts.true_positives, counts.false_positives, counts.missed),
+        (tp, fp, missed),
+        "the panel counts the refined boxes as the evaluation does"
+    );
+    let proposals = view.proposal_counts(settings.min_score);
+    let label = format!(
+        "proposals: {} TP, {} FP, {} missed",
+        proposals.true_positives, proposals.false_positives, proposals.missed
+    );
+    assert!(h.query_by_label_contains(&label).is_some(), "{label}");
+    assert!(h
+        .query_by_label_contains(&format!("{} refined boxes", counts.shown))
+        .is_some());
+
+    // Blue proposals, red refinements and green ground truth on screen; each layer's toggle.
+    let img = h.render().unwrap();
+    let (blue, red) = (count_pixels(&img, rect, &BLUE), count_pixels(&img, rect, &RED));
+    let green = count_pixels(&img, rect, &[GT_COLOR]);
+    assert!(blue > blue0 + 20, "blue {blue0} -> {blue}");
+    assert!(red > red0 + 20, "red {red0} -> {red}");
+    assert!(green > 50, "green {green}");
+    // (Clicked through accesskit: the View section may be scrolled out of the panel.)
+    h.get_by_label("refinements").click_accesskit();
+    h.run_steps(2);
+    let img = h.render().unwrap();
+    assert!(count_pixels(&img, rect, &RED) <= red0, "refinements off");
+    assert!(count_pixels(&img, rect, &BLUE) >= blue);
+    h.get_by_label("refinements").click_accesskit();
+    h.get_by_label("proposals").click_accesskit();
+    h.run_steps(2);
+    let img = h.render().unwrap();
+    assert!(count_pixels(&img, rect, &BLUE) <= blue0, "proposals off");
+    assert!(count_pixels(&img, rect, &RED) >= red);
+    h.get_by_label("ground-truth boxes").click_accesskit();
+    h.run_steps(2);
+    let img = h.render().unwrap();
+    let green_off = count_pixels(&img, rect, &[GT_COLOR]);
+    assert!(green_off < green / 10, "ground truth off: {green} -> {green_off}");
+    // The layers and the case are kept in the session.
+    let saved = h.state().current_session().detection;
+    assert_eq!(saved.case, Case::MlodI);
+    assert!(!saved.show && saved.show_refined);
+}
+
+#[test]
+fn hovering_or_clicking_a_refined_box_highlights_its_active_points() {
+    let mut s = mlod_session(0.04, ColorMode::Source);
+    s.detection.auto_run = true;
+    s.detection.show_active = true;
+    // Only the refined boxes compete for the pointer.
+    s.detection.show = false;
+    s.show_ground_truth = false;
+    let mut h = harness_with(Some(s), Some(mlod_models()));
+    h.state_mut().set_preset(View::Bev);
+    h.run_steps(2);
+    let rect = h.state().hover_state().0;
+    let active = |h: &Harness<'static, MlodApp>| {
+        let scene = h.state().viewport().1;
+        scene
+            .colors()
+            .iter()
+            .filter(|c| **c == ACTIVE_POINT_COLOR)
+            .count()
+    };
+    assert_eq!(active(&h), 0, "nothing hovered or selected: nothing highlighted");
+    // The refined box nearest the car with active points, where it is on screen.
+    let (k, target) = {
+        let app = h.state();
+        let r = app.detection().unwrap().0.refinement.as_ref().unwrap();
+        let cam = &app.viewport().0.camera;
+        let min = app.session().detection.min_score;
+        let mut order: Vec<usize> = (0..r.refined.len()).collect();
+        order.sort_by(|&a, &b| {
+            let d = |k: usize| r.refined[k].detection.box3d.bev_range();
+            d(a).total_cmp(&d(b))
+        });
+        order
+            .into_iter()
+            .filter(|&k| !r.refined[k].active.is_empty() && r.refined[k].detection.score >= min)
+            .find_map(|k| {
+                let c = r.refined[k].detection.box3d.center;
+                let p = cam.project([c[0] as f32, c[1] as f32, c[2] as f32], rect)?;
+                rect.shrink(40.0).contains(p).then_some((k, p))
+            })
+            .expect("a refined box with active points in view")
+    };
+    let active_of = |h: &Harness<'static, MlodApp>, k: usize| {
+        h.state()
+            .detection()
+            .unwrap()
+            .0
+            .refinement
+            .as_ref()
+            .unwrap()
+            .refined[k]
+            .active
+            .len()
+    };
+    h.hover_at(target);
+    h.run_steps(60);
+    let (_, hovered, _) = h.state().hovered_detection();
+    let hovered = hovered.expect("a refined box under the pointer");
+    assert_eq!(h.state().highlighted_refined(), Some(hovered));
+    assert_eq!(
+        active(&h),
+        active_of(&h, hovered),
+        "every active point recoloured"
+    );
+    assert!(
+        h.query_by_label_contains("classification head").is_some(),
+        "refined tooltip"
+    );
+    assert!(h.query_by_label_contains("best GT 3D IoU").is_some());
+    assert!(h.query_by_label_contains("points gathered").is_some());
+    // A click selects it: the highlight stays once the pointer has left.
+    h.drag_at(target);
+    h.run_steps(1);
+    h.event(egui::Event::PointerButton {
+        pos: target,
+        button: egui::PointerButton::Primary,
+        pressed: false,
+        modifiers: egui::Modifiers::NONE,
+    });
+    h.run_steps(1);
+    h.remove_cursor();
+    h.run_steps(2);
+    let (_, hovered_now, selected) = h.state().hovered_detection();
+    assert_eq!((hovered_now, selected), (None, Some(hovered)), "k = {k}");
+    assert_eq!(h.state().highlighted_refined(), Some(hovered));
+    assert_eq!(active(&h), active_of(&h, hovered));
+    // Clicking empty space clears it.
+    let empty = rect.min + egui::vec2(8.0, 8.0);
+    h.hover_at(empty);
+    h.run_steps(1);
+    assert_eq!(h.state().hovered_detection().1, None, "the corner is empty");
+    h.drag_at(empty);
+    h.run_steps(1);
+    h.drop_at(empty);
+    h.run_steps(2);
+    assert_eq!(h.state().hovered_detection().2, None);
+    assert_eq!(active(&h), 0);
+    // With the toggle off nothing is highlighted, even when selected.
+    h.state_mut().select_refined(Some(hovered));
+    h.run_steps(1);
+    assert_eq!(active(&h), active_of(&h, hovered));
+    h.state_mut().session_mut().detection.show_active = false;
+    h.run_steps(2);
+    assert_eq!(active(&h), 0);
+}
+
+#[test]
+fn mlod_without_a_refiner_is_an_error_toast_and_keeps_the_state() {
+    let dir = std::env::temp_dir().join(format!("mlod-gui-no-refiner-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let models = stage1_copy(&dir);
+    let mut s = session_at(0.0, ColorMode::Source);
+    s.detection.case = Case::Input;
+    let mut h = harness_with(Some(s), Some(models.clone()));
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let before = h.state().detection().expect("stage 1 runs").0.detections.clone();
+    h.state_mut().session_mut().detection.case = Case::MlodI;
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let (view, _) = h.state().detection().expect("the last detection stays");
+    assert_eq!((view.case, &view.detections), (Case::Input, &before));
+    assert!(view.refinement.is_none());
+    assert!(h.state().fused().is_some(), "the cloud stays");
+    let error = h.state().first_error().expect("an error toast").to_string();
+    assert!(
+        error.contains("manifest.json") && error.contains("mlod train refiner"),
+        "{error}"
+    );
+    assert!(h.query_by_label_contains("no refiner").is_some(), "shown");
+    // A corrupt refiner file is an error naming it.
+    std::fs::write(models.join("refiner.safetensors"), b"not a safetensors file").unwrap();
+    let mut m = Manifest::load(&models).unwrap();
+    let mut entry = m.models[&Case::Input].clone();
+    entry.file = "refiner.safetensors".into();
+    m.refiner = Some(entry);
+    m.save(&models).unwrap();
+    let mut h = harness_with(Some(mlod_session(0.0, ColorMode::Source)), Some(models));
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    assert!(h.state().detection().is_none());
+    assert!(h.state().fused().is_some());
+    let error = h.state().first_error().expect("an error toast").to_string();
+    assert!(error.contains("refiner.safetensors"), "{error}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Writes the sessions behind `screenshots/*.png` (run by `screenshots/make.sh`).
 #[test]
 #[ignore]
@@ -345,4 +718,14 @@ fn write_screenshot_sessions() {
     h.state_mut().set_preset(View::Chase);
     h.run_steps(2);
     save(&h, "detections");
+    // MLOD-I at α = 0.04, run on load: proposals (blue), refinements (red, joined to their
+    // proposals) and ground truth (green) over the points coloured by tr(Ξ). Needs the shipped
+    // refiner in assets/models when the screenshot is taken.
+    let mut s = mlod_session(0.04, ColorMode::Trace);
+    s.color.scale = mlod::color::Scale::Log;
+    s.detection.auto_run = true;
+    let mut h = harness(Some(s));
+    h.state_mut().set_preset(View::Chase);
+    h.run_steps(2);
+    save(&h, "mlod_i");
 }

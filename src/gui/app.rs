@@ -1,27 +1,25 @@
 //! The debugger window: state, layout and the glue between the panels, the library pipeline and
 //! the viewport. All numbers come from the library (`pipeline::fuse`, `color`, `box_stats`); this
-//! file only holds state, lays out widgets and hands data to the renderer.
+//! file only holds state, lays out widgets and hands data to the renderer. Running a detector,
+//! drawing its layers and highlighting active points live in [`detection`].
+
+mod detection;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Instant;
 
 use eframe::egui;
 
-use super::jobs::{DetectRequest, JobResult, Jobs};
+use super::jobs::{JobResult, Jobs, LoadedDetector};
 use super::overlay::{self, OverlayInput};
 use super::panels::{self, Panels};
 use super::state::{camera_from_pose, pose_from_camera};
-use super::state::{
-    Action, DetectionCounts, DetectionView, Loaded, RawDetection, Shell, Toast, FALSE_POSITIVE_COLOR,
-    GT_COLOR, PROPOSAL_COLOR,
-};
-use super::viewport::{self, box_lines, grid_lines, Camera, SceneHandle, View, Viewport};
+use super::state::{Action, Loaded, Shell, Toast};
+use super::viewport::{self, Camera, SceneHandle, View, Viewport};
 use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
 use crate::detect::weights::default_models_dir;
-use crate::detect::{Case, Detector};
-use crate::eval::PredOutcome;
+use crate::detect::Case;
 use crate::lyft::{Frame, LidarChannel};
 use crate::pipeline::{fuse, BoxStats, FusedCloud};
 use crate::session::Session;
@@ -66,9 +64,12 @@ pub struct MlodApp {
     hovered_box: Option<(usize, BoxStats)>,
     measure: Option<(usize, Vec<Instant>)>,
     viewport_rect: egui::Rect,
-    detectors: BTreeMap<Case, Arc<dyn Detector>>,
+    detectors: BTreeMap<Case, LoadedDetector>,
     detect_again: bool,
     hovered_detection: Option<usize>,
+    hovered_refined: Option<usize>,
+    /// The refined box whose active points are painted over the colouring.
+    highlighted: Option<usize>,
     models_dir: PathBuf,
 }
 
@@ -120,6 +121,8 @@ impl MlodApp {
             detectors: BTreeMap::new(),
             detect_again: false,
             hovered_detection: None,
+            hovered_refined: None,
+            highlighted: None,
             models_dir: options
                 .models
                 .clone()
@@ -239,6 +242,7 @@ impl MlodApp {
                             self.ego_heading = ego_heading(&frame);
                             if self.loaded.detection.as_ref().is_some_and(|d| d.token != token) {
                                 self.loaded.detection = None;
+                                self.loaded.selected_refined = None;
                             }
                             self.session.sample_token = Some(token);
                             self.loaded.frame = Some(frame);
@@ -254,88 +258,9 @@ impl MlodApp {
                     case,
                     result,
                     millis,
-                } => {
-                    self.loaded.detecting = false;
-                    match result {
-                        Ok(out) => {
-                            let on_screen = self
-                                .loaded
-                                .frame
-                                .as_ref()
-                                .is_some_and(|f| f.sample_token == token);
-                            if on_screen {
-                                let raw = RawDetection {
-                                    case,
-                                    token,
-                                    generation,
-                                    detections: out.detections,
-                                    categories: out.detector.categories(),
-                                    millis,
-                                };
-                                let frame = self.loaded.frame.as_deref();
-                                self.loaded.detection =
-                                    Some(DetectionView::matched(raw, frame, &self.session.detection));
-                                self.rebuild_lines();
-                            }
-                            self.detectors.insert(case, out.detector);
-                        }
-                        Err(e) => {
-                            self.detect_again = false;
-                            self.toast(now, format!("cannot run {}: {e}", case.paper_name()), true);
-                        }
-                    }
-                    if std::mem::take(&mut self.detect_again) {
-                        self.run_detector();
-                    }
-                }
+                } => self.apply_detection(token, generation, case, result, millis, now),
             }
         }
-    }
-
-    /// Runs the session's stage-1 detector on the sample on screen, in the background. A request
-    /// while one is running is remembered and run once that one is back (latest state wins).
-    pub fn run_detector(&mut self) {
-        let Some(frame) = self.loaded.frame.clone() else {
-            return;
-        };
-        if self.loaded.detecting {
-            self.detect_again = true;
-            return;
-        }
-        let case = self.session.detection.case;
-        self.loaded.detecting = true;
-        self.jobs.detect(DetectRequest {
-            frame,
-            params: self.session.fuse.clone(),
-            generation: self.loaded.fuse_generation,
-            case,
-            cached: self.detectors.get(&case).cloned(),
-            models: self.models_dir.clone(),
-        });
-    }
-
-    /// Whether a detector run is in flight.
-    pub fn is_detecting(&self) -> bool {
-        self.loaded.detecting
-    }
-
-    /// Whether the detection on screen was made before the last change of perturbation.
-    pub fn detection_is_stale(&self) -> bool {
-        self.loaded.detection_is_stale(self.session.detection.case)
-    }
-
-    /// Re-matches the detection on screen (after the match IoU or the min score changed).
-    pub fn rematch(&mut self) {
-        if let Some(d) = self.loaded.detection.take() {
-            let frame = self.loaded.frame.as_deref();
-            self.loaded.detection = Some(d.rematched(frame, &self.session.detection));
-        }
-        self.rebuild_lines();
-    }
-
-    /// The detection on screen and its counts (drawn proposals: score ≥ the session's min score).
-    pub fn detection(&self) -> Option<(&DetectionView, DetectionCounts)> {
-        self.loaded.detection(self.session.detection.min_score)
     }
 
     /// A preset view, turned so that the ego car's front is "forward" in it.
@@ -439,7 +364,9 @@ impl MlodApp {
                 auto_range(scalars(cloud, self.session.color.mode), self.session.color.scale);
         }
         let all = colorize(cloud, &self.session.color);
-        self.scene_index.iter().map(|&i| all[i as usize]).collect()
+        let mut out: Vec<[u8; 4]> = self.scene_index.iter().map(|&i| all[i as usize]).collect();
+        self.paint_active(&mut out);
+        out
     }
 
     fn update_histogram(&mut self) {
@@ -457,31 +384,6 @@ impl MlodApp {
             histogram(scalars(cloud, c.mode), c.range, c.scale, HISTOGRAM_BINS)
         };
         self.loaded.uncertain_fraction = cloud.uncertain_fraction(UNCERTAIN_TRACE);
-    }
-
-    pub(crate) fn rebuild_lines(&mut self) {
-        let mut lines = grid_lines(80.0, 10.0, -1.8);
-        if self.session.show_ground_truth {
-            if let Some(f) = &self.loaded.frame {
-                for b in &f.boxes {
-                    lines.extend(box_lines(b.box3d.corners(), GT_COLOR, true));
-                }
-            }
-        }
-        let settings = self.session.detection;
-        if let Some(d) = self.loaded.detection.as_ref().filter(|_| settings.show) {
-            for (det, o) in d.detections.iter().zip(&d.outcomes) {
-                if det.score < settings.min_score {
-                    continue;
-                }
-                let color = match o {
-                    PredOutcome::FalsePositive { .. } => FALSE_POSITIVE_COLOR,
-                    _ => PROPOSAL_COLOR,
-                };
-                lines.extend(box_lines(det.box3d.corners(), color, true));
-            }
-        }
-        self.scene.set_lines(lines);
     }
 
     /// The session as it stands now (camera included), for saving.
@@ -638,6 +540,14 @@ impl MlodApp {
         self.viewport_rect = out.rect;
         self.hovered_box = out.hovered_box;
         self.hovered_detection = out.hovered_detection;
+        self.hovered_refined = out.hovered_refined;
+        if let Some(k) = out.clicked {
+            // A click selects the refined box under the pointer; elsewhere it clears.
+            self.loaded.selected_refined = k;
+        }
+        if self.update_highlight() {
+            ui.ctx().request_repaint();
+        }
         if let Some(text) = out.message {
             let now = ui.input(|i| i.time);
             self.toast(now, text, false);

@@ -1,16 +1,46 @@
 //! Background work for the GUI: opening a dataset and loading a frame run on worker threads and
 //! report back through a channel that the UI drains once per frame, so the window never blocks on
 //! disk. Results carry the request they answer; stale ones (the user already moved on) are
-//! dropped by the app. `synchronous` mode runs jobs inline (tests, headless screenshots).
+//! dropped by the app. Detector runs give stage 1's boxes and, for an MLOD case, their
+//! refinements (`Mlod::run`). `synchronous` mode runs jobs inline (tests, headless screenshots).
 
 use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 
-use crate::detect::model::load_detector;
+use crate::detect::model::{load_detector, Voting};
 use crate::detect::{Case, Detection, Detector};
 use crate::lyft::{Dataset, Frame, SampleSummary};
 use crate::pipeline::FuseParams;
+use crate::refine::{load_mlod, Mlod, Refined};
+
+/// A loaded detector: a stage-1 case, or an MLOD case (stage 1 and the refiner).
+#[derive(Clone)]
+pub enum LoadedDetector {
+    Stage1(Arc<dyn Detector>),
+    Mlod(Arc<Mlod>),
+}
+
+impl LoadedDetector {
+    /// Loads the shipped detector of `case` from a models folder (box voting as its manifest says).
+    fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
+        if case.is_mlod() {
+            let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
+            Ok(Self::Mlod(Arc::new(m)))
+        } else {
+            let d = load_detector(models, case).map_err(|e| e.to_string())?;
+            Ok(Self::Stage1(Arc::from(d)))
+        }
+    }
+
+    /// The categories it outputs.
+    pub fn categories(&self) -> Vec<String> {
+        match self {
+            Self::Stage1(d) => d.categories(),
+            Self::Mlod(m) => m.categories(),
+        }
+    }
+}
 
 /// A detector run: the shipped model of `case` on one frame fused with `params`.
 pub struct DetectRequest {
@@ -20,14 +50,17 @@ pub struct DetectRequest {
     pub generation: u64,
     pub case: Case,
     /// The already-loaded detector of this case, if any.
-    pub cached: Option<Arc<dyn Detector>>,
+    pub cached: Option<LoadedDetector>,
     pub models: PathBuf,
 }
 
 /// What a detector run gives back.
 pub struct DetectOutput {
-    pub detector: Arc<dyn Detector>,
+    pub detector: LoadedDetector,
+    /// Stage 1's boxes (an MLOD case's proposals), highest score first.
     pub detections: Vec<Detection>,
+    /// An MLOD case's refinements of `detections`.
+    pub refined: Option<Vec<Refined>>,
 }
 
 /// A finished job.
@@ -116,20 +149,30 @@ impl Jobs {
         });
     }
 
-    /// Runs a stage-1 detector (loading its weights first if needed) on a worker thread.
+    /// Runs a detector (loading its weights first if needed) on a worker thread; an MLOD case
+    /// gives its proposals and their refinements.
     pub fn detect(&mut self, req: DetectRequest) {
         self.spawn(move || {
             let start = std::time::Instant::now();
             let token = req.frame.sample_token.clone();
             let result = (|| {
-                let detector: Arc<dyn Detector> = match req.cached {
+                let detector = match req.cached {
                     Some(d) => d,
-                    None => Arc::from(load_detector(&req.models, req.case).map_err(|e| e.to_string())?),
+                    None => LoadedDetector::load(&req.models, req.case)?,
                 };
-                let detections = detector
-                    .detect(&req.frame, &req.params)
-                    .map_err(|e| e.to_string())?;
-                Ok(DetectOutput { detector, detections })
+                let (detections, refined) = match &detector {
+                    LoadedDetector::Stage1(d) => (d.detect(&req.frame, &req.params), None),
+                    LoadedDetector::Mlod(m) => match m.run(&req.frame, &req.params) {
+                        Ok(run) => (Ok(run.proposals), Some(run.refined)),
+                        Err(e) => (Err(e), None),
+                    },
+                };
+                let detections = detections.map_err(|e| e.to_string())?;
+                Ok(DetectOutput {
+                    detector,
+                    detections,
+                    refined,
+                })
             })();
             JobResult::Detect {
                 token,

@@ -1,7 +1,8 @@
 //! What the central panel shows: the viewport, a message while nothing is loaded, and the box
 //! under the pointer with its tooltip (ground truth: size, distance, points and tr(Ξ) inside,
-//! detected or missed; a proposal: score, points, TP/FP with its IoU). Numbers come from the
-//! library (`box_stats`, the matching in [`super::state::DetectionView`]).
+//! detected or missed; a proposal: score, points, TP/FP with its IoU; a refined box: its scores,
+//! its IoU before and after refinement, TP/FP, points gathered). Numbers come from the library
+//! (`box_stats`, the refiner's output, the matching in [`super::state::DetectionView`]).
 
 use eframe::egui;
 use egui::Color32;
@@ -29,6 +30,11 @@ pub struct OverlayOutput {
     pub hovered_box: Option<(usize, BoxStats)>,
     /// The proposal under the pointer (index in the detection on screen).
     pub hovered_detection: Option<usize>,
+    /// The refined box under the pointer (index in the refinement on screen).
+    pub hovered_refined: Option<usize>,
+    /// A click in the viewport (not a drag): the refined box under the pointer (the smallest on
+    /// screen, whatever else competes for the hover), or none.
+    pub clicked: Option<Option<usize>>,
     /// A message for a toast (a double-clicked point).
     pub message: Option<String>,
 }
@@ -38,6 +44,7 @@ pub struct OverlayOutput {
 enum Hovered {
     Truth(usize),
     Proposal(usize),
+    Refined(usize),
 }
 
 /// Draws the viewport and the hover tooltip.
@@ -52,6 +59,8 @@ pub fn show(
         rect: out.response.rect,
         hovered_box: None,
         hovered_detection: None,
+        hovered_refined: None,
+        clicked: None,
         message: None,
     };
     if input.loaded.frame.is_none() {
@@ -80,7 +89,16 @@ pub fn show(
             result.message = Some(format!("focused a {ch} point, tr(Ξ) = {:.4} m²", cloud.trace[k]));
         }
     }
-    let Some(pointer) = out.response.hover_pos() else {
+    let clicked = out.response.clicked();
+    // A click whose pointer left in the same frame still has the press position.
+    let pointer = out
+        .response
+        .hover_pos()
+        .or_else(|| clicked.then(|| out.response.interact_pointer_pos()).flatten());
+    let Some(pointer) = pointer else {
+        if clicked {
+            result.clicked = Some(None);
+        }
         return result;
     };
     let (Some(frame), Some(cloud)) = (&input.loaded.frame, &input.loaded.fused) else {
@@ -97,10 +115,19 @@ pub fn show(
         (pts.len() == 8).then(|| egui::Rect::from_points(&pts))
     };
     let mut best: Option<(Hovered, f32)> = None;
+    let mut best_refined: Option<(usize, f32)> = None;
     let mut consider = |h: Hovered, r: Option<egui::Rect>| {
         if let Some(r) = r {
-            if r.contains(pointer) && best.is_none_or(|(_, a)| r.area() < a) {
+            if !r.contains(pointer) {
+                return;
+            }
+            if best.is_none_or(|(_, a)| r.area() < a) {
                 best = Some((h, r.area()));
+            }
+            if let Hovered::Refined(k) = h {
+                if best_refined.is_none_or(|(_, a)| r.area() < a) {
+                    best_refined = Some((k, r.area()));
+                }
             }
         }
     };
@@ -110,12 +137,24 @@ pub fn show(
         }
     }
     let settings = input.session.detection;
-    if let Some(d) = input.loaded.detection.as_ref().filter(|_| settings.show) {
-        for (i, det) in d.detections.iter().enumerate() {
-            if det.score >= settings.min_score {
-                consider(Hovered::Proposal(i), screen_rect(det.box3d.corners()));
+    if let Some(d) = input.loaded.detection.as_ref() {
+        if settings.show {
+            for (i, det) in d.detections.iter().enumerate() {
+                if det.score >= settings.min_score {
+                    consider(Hovered::Proposal(i), screen_rect(det.box3d.corners()));
+                }
             }
         }
+        if let Some(r) = d.refinement.as_ref().filter(|_| settings.show_refined) {
+            for (k, x) in r.refined.iter().enumerate() {
+                if x.detection.score >= settings.min_score {
+                    consider(Hovered::Refined(k), screen_rect(x.detection.box3d.corners()));
+                }
+            }
+        }
+    }
+    if clicked {
+        result.clicked = Some(best_refined.map(|(k, _)| k));
     }
     match best {
         Some((Hovered::Truth(bi), _)) => {
@@ -127,7 +166,7 @@ pub fn show(
                 .loaded
                 .detection
                 .as_ref()
-                .and_then(|d| d.gt_outcomes.get(bi).copied());
+                .and_then(|d| d.final_gt_outcomes().get(bi).copied());
             out.response.on_hover_ui_at_pointer(|ui| {
                 ui.strong(format!("ground truth: {}", b.category));
                 ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
@@ -160,7 +199,11 @@ pub fn show(
             let outcome = d.outcomes[i];
             let case = d.case;
             out.response.on_hover_ui_at_pointer(|ui| {
-                ui.strong(format!("proposal ({}): {}", case.paper_name(), det.category));
+                ui.strong(format!(
+                    "proposal ({}): {}",
+                    case.stage1().paper_name(),
+                    det.category
+                ));
                 ui.label(format!("score  {:.3}", det.score));
                 ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
                 ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));
@@ -174,6 +217,51 @@ pub fn show(
                         ui.label(format!("false positive: best 3D IoU {best_iou:.2}"));
                     }
                     PredOutcome::Ignored => {}
+                }
+            });
+        }
+        Some((Hovered::Refined(k), _)) => {
+            result.hovered_refined = Some(k);
+            let Some((d, r)) = input
+                .loaded
+                .detection
+                .as_ref()
+                .and_then(|d| Some((d, d.refinement.as_ref()?)))
+            else {
+                return result;
+            };
+            let x = &r.refined[k];
+            let det = &x.detection;
+            let stats = box_stats(cloud, &det.box3d);
+            let [l, w, h] = det.box3d.size_lwh;
+            let (outcome, before, after) = (r.outcomes[k], r.iou_before[k], r.iou_after[k]);
+            let case = d.case;
+            out.response.on_hover_ui_at_pointer(|ui| {
+                ui.strong(format!("refined ({}): {}", case.paper_name(), det.category));
+                ui.label(format!("score  {:.3}", det.score));
+                ui.label(format!("classification head  {:.3}", x.refined_score));
+                if let Some(p) = d.detections.get(x.proposal) {
+                    ui.label(format!("proposal's score  {:.3}", p.score));
+                }
+                ui.label(format!("best GT 3D IoU  {before:.2} before, {after:.2} after"));
+                match outcome {
+                    PredOutcome::TruePositive { iou, .. } => {
+                        ui.label(format!("true positive: 3D IoU {iou:.2}"));
+                    }
+                    PredOutcome::FalsePositive { best_iou } => {
+                        ui.label(format!("false positive: best 3D IoU {best_iou:.2}"));
+                    }
+                    PredOutcome::Ignored => {}
+                }
+                ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
+                ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));
+                ui.label(format!("points gathered (box + margin)  {}", x.gathered));
+                ui.label(format!("points inside  {}", stats.points));
+                ui.label(format!("mean tr(Ξ) inside  {:.4} m²", stats.mean_trace));
+                if x.unrefined {
+                    ui.label("no points: kept as proposed");
+                } else {
+                    ui.label(format!("active points  {}", x.active.len()));
                 }
             });
         }

@@ -8,13 +8,11 @@ use std::path::PathBuf;
 use eframe::egui;
 use egui::{Color32, RichText, Sense, Stroke};
 
-use super::state::{
-    channel_counts, color32, lidar_label, Action, Loaded, Shell, FALSE_POSITIVE_COLOR, GT_COLOR,
-    PROPOSAL_COLOR,
-};
+mod detection;
+
+use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
 use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
 use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
-use crate::detect::Case;
 use crate::lyft::LidarChannel;
 use crate::session::Session;
 use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
@@ -261,7 +259,7 @@ pub fn controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     egui::ScrollArea::vertical().show(ui, |ui| {
         perturbation(p, ui);
         ui.separator();
-        detection(p, ui);
+        detection::detection(p, ui);
         ui.separator();
         coloring(p, ui);
         ui.separator();
@@ -379,99 +377,6 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
 }
 
 /// Three labelled drag values in a row, each within ±`limit`; true if any changed.
-/// Stage-1 detection: pick a case, run it on the sample on screen, see its proposals matched
-/// against the ground truth.
-fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    ui.heading("Detection (stage 1)");
-    let mut run = false;
-    let mut rematch = false;
-    let mut redraw = false;
-    ui.horizontal(|ui| {
-        let d = &mut p.session.detection;
-        egui::ComboBox::new("mlod_detector_case", "case")
-            .selected_text(d.case.paper_name())
-            .show_ui(ui, |ui| {
-                for c in Case::ALL {
-                    ui.selectable_value(&mut d.case, c, c.paper_name());
-                }
-            });
-        let label = if p.loaded.detecting {
-            "Running…"
-        } else {
-            "Run (D)"
-        };
-        run |= ui
-            .add_enabled(p.loaded.frame.is_some(), egui::Button::new(label))
-            .on_hover_text("Run the detector on this sample with the current perturbation")
-            .clicked();
-    });
-    let d = &mut p.session.detection;
-    ui.checkbox(&mut d.auto_run, "run again on every change")
-        .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
-    rematch |= ui
-        .add(egui::Slider::new(&mut d.min_score, 0.05..=0.95).text("min score"))
-        .changed();
-    ui.horizontal(|ui| {
-        ui.label("true positive at 3D IoU ≥");
-        rematch |= ui.radio_value(&mut d.match_iou, 0.5, "0.5").changed();
-        rematch |= ui.radio_value(&mut d.match_iou, 0.7, "0.7").changed();
-    });
-    redraw |= ui
-        .checkbox(
-            &mut d.show,
-            RichText::new("proposal boxes").color(color32(PROPOSAL_COLOR)),
-        )
-        .changed();
-    let stale = p.loaded.detection_is_stale(p.session.detection.case);
-    match p.loaded.detection(p.session.detection.min_score) {
-        Some((v, c)) => {
-            ui.horizontal_wrapped(|ui| {
-                ui.label(format!("{}:", v.case.paper_name()));
-                ui.label(format!("{} proposals", c.shown));
-                ui.label(RichText::new(format!("{} TP", c.true_positives)).color(color32(PROPOSAL_COLOR)));
-                ui.label(
-                    RichText::new(format!("{} FP", c.false_positives)).color(color32(FALSE_POSITIVE_COLOR)),
-                );
-                ui.label(
-                    RichText::new(format!(
-                        "{} of {} {} missed",
-                        c.missed,
-                        c.ground_truth,
-                        v.categories.join("/")
-                    ))
-                    .color(color32(GT_COLOR)),
-                );
-            });
-            if p.shell.show_timings {
-                ui.label(
-                    RichText::new(format!(
-                        "{:.0} ms (weights, fuse, voxelise, network, NMS)",
-                        v.millis
-                    ))
-                    .weak(),
-                );
-            }
-            if stale {
-                ui.label(
-                    RichText::new("stale: the perturbation or the case changed since this run. Run again")
-                        .color(Color32::from_rgb(240, 190, 80)),
-                );
-            }
-        }
-        None => {
-            ui.label(RichText::new("no detection on this sample yet").weak());
-        }
-    }
-    if run {
-        p.act(Action::RunDetector);
-    }
-    if rematch {
-        p.act(Action::Rematch);
-    } else if redraw {
-        p.act(Action::RebuildLines);
-    }
-}
-
 fn drag_row(
     ui: &mut egui::Ui,
     values: &mut [f64; 3],
@@ -711,7 +616,7 @@ pub fn help_overlay(p: &mut Panels<'_>, ctx: &egui::Context) {
     egui::Window::new("Keyboard and mouse").open(&mut open).collapsible(false).resizable(false).anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0]).show(ctx, |ui| {
         ui.monospace(CONTROLS_HELP);
         ui.separator();
-        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the stage-1 detector\nF1 or ?     this help\nEsc         close");
+        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the detector (Detection panel)\nF1 or ?     this help\nEsc         close");
         ui.separator();
         ui.label("Drop a dataset folder or a session .json on the window to open it.");
     });

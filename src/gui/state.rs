@@ -1,7 +1,8 @@
 //! The window's state below both the app and the panels: what has been loaded and computed
-//! ([`Loaded`]), the window's own bits ([`Shell`]: toasts, recent datasets, help), the stage-1
-//! detection on screen ([`DetectionView`]) and the [`Action`]s a panel asks the app to carry
-//! out. Panels draw from these and edit the session; only the app starts jobs and recomputes.
+//! ([`Loaded`]), the window's own bits ([`Shell`]: toasts, recent datasets, help), the detection
+//! on screen ([`DetectionView`]: stage 1's boxes and an MLOD case's refinements) and the
+//! [`Action`]s a panel asks the app to carry out. Panels draw from these and edit the session;
+//! only the app starts jobs and recomputes.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -13,9 +14,10 @@ use egui::{Color32, RichText};
 use super::viewport::{Camera, Projection, View};
 use crate::detect::{Case, Detection};
 use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
-use crate::geometry::IouKind;
+use crate::geometry::{iou_3d, IouKind};
 use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::pipeline::FusedCloud;
+use crate::refine::Refined;
 use crate::session::{CameraPose, DetectionSettings};
 
 /// Ground-truth box colour (paper: green).
@@ -24,6 +26,15 @@ pub const GT_COLOR: [u8; 4] = [70, 230, 110, 255];
 pub const PROPOSAL_COLOR: [u8; 4] = [70, 150, 255, 255];
 /// A proposal that matches no ground truth (false positive): a greyed blue.
 pub const FALSE_POSITIVE_COLOR: [u8; 4] = [150, 160, 200, 255];
+/// An MLOD refined box (paper: red); a true positive.
+pub const REFINED_COLOR: [u8; 4] = [235, 60, 60, 255];
+/// A refined box that matches no ground truth: a greyed red.
+pub const REFINED_FALSE_POSITIVE_COLOR: [u8; 4] = [200, 150, 150, 255];
+/// The thin line from a proposal's centre to its refinement's: a dimmer red.
+pub const LINK_COLOR: [u8; 4] = [150, 55, 55, 255];
+/// The active points (§V-C) of the hovered or selected refined box: white, a colour no
+/// colouring uses.
+pub const ACTIVE_POINT_COLOR: [u8; 4] = [255, 255, 255, 255];
 
 /// What a panel asks the app to do (the panels cannot start jobs or recompute themselves).
 #[derive(Debug, Clone, PartialEq)]
@@ -100,6 +111,8 @@ pub struct Loaded {
     pub detection: Option<DetectionView>,
     /// A detector run is in flight.
     pub detecting: bool,
+    /// The refined box clicked in the viewport (index into the refinement on screen).
+    pub selected_refined: Option<usize>,
 }
 
 impl Loaded {
@@ -118,32 +131,48 @@ impl Loaded {
     }
 }
 
-/// The last stage-1 detection run on the sample on screen, matched against its ground truth.
+/// The last detection run on the sample on screen, matched against its ground truth: stage 1's
+/// boxes and, for an MLOD case, their refinements.
 #[derive(Debug, Clone)]
 pub struct DetectionView {
     pub case: Case,
     pub token: String,
     /// The fuse generation it was computed at; older than the app's: stale (α changed since).
     pub generation: u64,
-    /// Highest score first.
+    /// Stage 1's boxes (an MLOD case's proposals), highest score first.
     pub detections: Vec<Detection>,
     /// Per detection: TP (with its GT and IoU), FP or ignored, at the session's match IoU.
     pub outcomes: Vec<PredOutcome>,
-    /// Per ground-truth box of the frame: matched or missed; ignored when the detector does not
-    /// output its category.
+    /// Per ground-truth box of the frame: matched or missed by stage 1; ignored when the detector
+    /// does not output its category.
     pub gt_outcomes: Vec<GtOutcome>,
+    /// An MLOD case's refined boxes, matched on their own.
+    pub refinement: Option<Refinement>,
     /// The categories the detector outputs.
     pub categories: Vec<String>,
     pub millis: f64,
 }
 
-/// Counts shown in the Detection panel (drawn proposals only, i.e. score ≥ min score).
+/// The refined boxes of an MLOD run, matched against the ground truth like stage 1's.
+#[derive(Debug, Clone)]
+pub struct Refinement {
+    /// Highest score first; each links to its proposal in [`DetectionView::detections`].
+    pub refined: Vec<Refined>,
+    pub outcomes: Vec<PredOutcome>,
+    pub gt_outcomes: Vec<GtOutcome>,
+    /// Per refined box: the best 3D IoU of its proposal with a ground-truth box of its category
+    /// (before refinement) and of the refined box (after).
+    pub iou_before: Vec<f64>,
+    pub iou_after: Vec<f64>,
+}
+
+/// Counts shown in the Detection panel (drawn boxes only, i.e. score ≥ min score).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct DetectionCounts {
     pub shown: usize,
     pub true_positives: usize,
     pub false_positives: usize,
-    /// Ground-truth boxes of the detector's categories, and how many of them no drawn proposal
+    /// Ground-truth boxes of the detector's categories, and how many of them no drawn box
     /// matched.
     pub ground_truth: usize,
     pub missed: usize,
@@ -155,55 +184,50 @@ pub struct RawDetection {
     pub token: String,
     pub generation: u64,
     pub detections: Vec<Detection>,
+    /// An MLOD case's refinements of `detections`.
+    pub refined: Option<Vec<Refined>>,
     pub categories: Vec<String>,
     pub millis: f64,
 }
 
 impl DetectionView {
-    /// Matches a run's detections against the frame's ground truth at the settings' operating
-    /// point: only the drawn proposals (score ≥ min score) take part; ground truth of classes
-    /// the detector does not output is matched by nothing and ignored.
+    /// Matches a run's boxes (stage 1's, and the refined ones on their own) against the frame's
+    /// ground truth at the settings' operating point: only the drawn boxes (score ≥ min score)
+    /// take part; ground truth of classes the detector does not output is matched by nothing and
+    /// ignored.
     pub fn matched(raw: RawDetection, frame: Option<&Frame>, settings: &DetectionSettings) -> Self {
         let gts: Vec<Detection> = frame
             .map(|f| f.boxes.iter().map(|b| b.as_detection()).collect())
             .unwrap_or_default();
-        let rule = MatchRule {
-            iou_threshold: settings.match_iou,
-            kind: IouKind::ThreeD,
-            max_range: f64::INFINITY,
-        };
-        let detections = raw.detections;
-        let kept: Vec<usize> = (0..detections.len())
-            .filter(|&i| detections[i].score >= settings.min_score)
-            .collect();
-        let shown: Vec<Detection> = kept.iter().map(|&i| detections[i].clone()).collect();
-        let known: Vec<usize> = (0..gts.len())
-            .filter(|&j| raw.categories.contains(&gts[j].category))
-            .collect();
-        let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
-        let m = match_sample(&shown, &known_gts, &rule);
-        let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
-        for (k, o) in kept.iter().zip(m.preds) {
-            outcomes[*k] = o;
-        }
-        // Back to the frame's ground-truth indices and the run's detection indices.
-        let mut gt_outcomes = vec![GtOutcome::Ignored; gts.len()];
-        for (&j, g) in known.iter().zip(m.gts) {
-            gt_outcomes[j] = match g {
-                GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
-                    pred: kept[pred],
-                    iou,
-                },
-                other => other,
+        let (outcomes, gt_outcomes) = match_layer(&raw.detections, &gts, &raw.categories, settings);
+        let refinement = raw.refined.map(|refined| {
+            let dets: Vec<Detection> = refined.iter().map(|r| r.detection.clone()).collect();
+            let (outcomes, gt_outcomes) = match_layer(&dets, &gts, &raw.categories, settings);
+            let best = |d: &Detection| {
+                gts.iter()
+                    .filter(|g| g.category == d.category)
+                    .map(|g| iou_3d(&d.box3d, &g.box3d))
+                    .fold(0.0, f64::max)
             };
-        }
+            Refinement {
+                iou_before: refined
+                    .iter()
+                    .map(|r| raw.detections.get(r.proposal).map_or(0.0, best))
+                    .collect(),
+                iou_after: dets.iter().map(best).collect(),
+                refined,
+                outcomes,
+                gt_outcomes,
+            }
+        });
         Self {
             case: raw.case,
             token: raw.token,
             generation: raw.generation,
-            detections,
+            detections: raw.detections,
             outcomes,
             gt_outcomes,
+            refinement,
             categories: raw.categories,
             millis: raw.millis,
         }
@@ -216,37 +240,105 @@ impl DetectionView {
             token: self.token,
             generation: self.generation,
             detections: self.detections,
+            refined: self.refinement.map(|r| r.refined),
             categories: self.categories,
             millis: self.millis,
         };
         Self::matched(raw, frame, settings)
     }
 
-    /// The counts of the Detection panel.
+    /// The counts of the Detection panel: of the refined boxes for an MLOD case, else of stage 1's.
     pub fn counts(&self, min_score: f32) -> DetectionCounts {
-        let mut c = DetectionCounts {
-            shown: self.detections.iter().filter(|x| x.score >= min_score).count(),
-            ..Default::default()
-        };
-        for o in &self.outcomes {
-            match o {
-                PredOutcome::TruePositive { .. } => c.true_positives += 1,
-                PredOutcome::FalsePositive { .. } => c.false_positives += 1,
-                PredOutcome::Ignored => {}
+        match &self.refinement {
+            Some(r) => {
+                let scores = r.refined.iter().map(|x| x.detection.score);
+                count_layer(scores, &r.outcomes, &r.gt_outcomes, min_score)
             }
+            None => self.proposal_counts(min_score),
         }
-        c.missed = self
-            .gt_outcomes
-            .iter()
-            .filter(|g| matches!(g, GtOutcome::Missed))
-            .count();
-        c.ground_truth = self
-            .gt_outcomes
-            .iter()
-            .filter(|g| !matches!(g, GtOutcome::Ignored))
-            .count();
-        c
     }
+
+    /// The counts of stage 1's boxes (an MLOD case's proposals).
+    pub fn proposal_counts(&self, min_score: f32) -> DetectionCounts {
+        let scores = self.detections.iter().map(|x| x.score);
+        count_layer(scores, &self.outcomes, &self.gt_outcomes, min_score)
+    }
+
+    /// Per ground-truth box: matched or missed by the final boxes (the refined ones for MLOD).
+    pub fn final_gt_outcomes(&self) -> &[GtOutcome] {
+        match &self.refinement {
+            Some(r) => &r.gt_outcomes,
+            None => &self.gt_outcomes,
+        }
+    }
+}
+
+/// Matches the drawn boxes of one layer (score ≥ min score) against the ground truth of the
+/// detector's categories; outcomes indexed by `detections` and by `gts`.
+fn match_layer(
+    detections: &[Detection],
+    gts: &[Detection],
+    categories: &[String],
+    settings: &DetectionSettings,
+) -> (Vec<PredOutcome>, Vec<GtOutcome>) {
+    let rule = MatchRule {
+        iou_threshold: settings.match_iou,
+        kind: IouKind::ThreeD,
+        max_range: f64::INFINITY,
+    };
+    let kept: Vec<usize> = (0..detections.len())
+        .filter(|&i| detections[i].score >= settings.min_score)
+        .collect();
+    let shown: Vec<Detection> = kept.iter().map(|&i| detections[i].clone()).collect();
+    let known: Vec<usize> = (0..gts.len())
+        .filter(|&j| categories.contains(&gts[j].category))
+        .collect();
+    let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
+    let m = match_sample(&shown, &known_gts, &rule);
+    let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
+    for (k, o) in kept.iter().zip(m.preds) {
+        outcomes[*k] = o;
+    }
+    // Back to the frame's ground-truth indices and the run's detection indices.
+    let mut gt_outcomes = vec![GtOutcome::Ignored; gts.len()];
+    for (&j, g) in known.iter().zip(m.gts) {
+        gt_outcomes[j] = match g {
+            GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
+                pred: kept[pred],
+                iou,
+            },
+            other => other,
+        };
+    }
+    (outcomes, gt_outcomes)
+}
+
+fn count_layer(
+    scores: impl Iterator<Item = f32>,
+    outcomes: &[PredOutcome],
+    gt_outcomes: &[GtOutcome],
+    min_score: f32,
+) -> DetectionCounts {
+    let mut c = DetectionCounts {
+        shown: scores.filter(|&s| s >= min_score).count(),
+        ..Default::default()
+    };
+    for o in outcomes {
+        match o {
+            PredOutcome::TruePositive { .. } => c.true_positives += 1,
+            PredOutcome::FalsePositive { .. } => c.false_positives += 1,
+            PredOutcome::Ignored => {}
+        }
+    }
+    c.missed = gt_outcomes
+        .iter()
+        .filter(|g| matches!(g, GtOutcome::Missed))
+        .count();
+    c.ground_truth = gt_outcomes
+        .iter()
+        .filter(|g| !matches!(g, GtOutcome::Ignored))
+        .count();
+    c
 }
 
 /// Points per LiDAR of a fused cloud.

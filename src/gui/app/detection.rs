@@ -1,0 +1,235 @@
+//! The app's detection half: running the session's case in the background (stage 1, or MLOD:
+//! stage 1 and the refiner), matching what comes back, drawing the layers (ground truth in green,
+//! stage 1's boxes in blue, refined boxes in red with a line to their proposal) and highlighting the
+//! active points of the hovered or selected refined box. The boxes, the matching and the active
+//! points all come from the library; this file only hands them to the scene.
+
+use super::MlodApp;
+use crate::detect::Case;
+use crate::eval::PredOutcome;
+use crate::gui::jobs::{DetectOutput, DetectRequest};
+use crate::gui::state::{
+    DetectionCounts, DetectionView, RawDetection, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR,
+    LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR,
+};
+use crate::gui::viewport::{box_lines, grid_lines, LineVertex};
+
+impl MlodApp {
+    /// Runs the session's case on the sample on screen, in the background. A request while one
+    /// is running is remembered and run once that one is back (latest state wins).
+    pub fn run_detector(&mut self) {
+        let Some(frame) = self.loaded.frame.clone() else {
+            return;
+        };
+        if self.loaded.detecting {
+            self.detect_again = true;
+            return;
+        }
+        let case = self.session.detection.case;
+        self.loaded.detecting = true;
+        self.jobs.detect(DetectRequest {
+            frame,
+            params: self.session.fuse.clone(),
+            generation: self.loaded.fuse_generation,
+            case,
+            cached: self.detectors.get(&case).cloned(),
+            models: self.models_dir.clone(),
+        });
+    }
+
+    /// A finished detector run: matched and drawn if its sample is still on screen; an error
+    /// (missing weights or refiner) becomes a toast and keeps what is on screen.
+    pub(super) fn apply_detection(
+        &mut self,
+        token: String,
+        generation: u64,
+        case: Case,
+        result: Result<DetectOutput, String>,
+        millis: f64,
+        now: f64,
+    ) {
+        self.loaded.detecting = false;
+        match result {
+            Ok(out) => {
+                let on_screen = self
+                    .loaded
+                    .frame
+                    .as_ref()
+                    .is_some_and(|f| f.sample_token == token);
+                if on_screen {
+                    let raw = RawDetection {
+                        case,
+                        token,
+                        generation,
+                        detections: out.detections,
+                        refined: out.refined,
+                        categories: out.detector.categories(),
+                        millis,
+                    };
+                    let frame = self.loaded.frame.as_deref();
+                    self.loaded.detection = Some(DetectionView::matched(raw, frame, &self.session.detection));
+                    // A new refinement: indices of the old one mean nothing (clearing both
+                    // unhighlights whatever was highlighted).
+                    self.loaded.selected_refined = None;
+                    self.hovered_refined = None;
+                    self.rebuild_lines();
+                    self.update_highlight();
+                }
+                self.detectors.insert(case, out.detector);
+            }
+            Err(e) => {
+                self.detect_again = false;
+                self.toast(now, format!("cannot run {}: {e}", case.paper_name()), true);
+            }
+        }
+        if std::mem::take(&mut self.detect_again) {
+            self.run_detector();
+        }
+    }
+
+    /// Whether a detector run is in flight.
+    pub fn is_detecting(&self) -> bool {
+        self.loaded.detecting
+    }
+
+    /// Whether the detection on screen was made before the last change of perturbation.
+    pub fn detection_is_stale(&self) -> bool {
+        self.loaded.detection_is_stale(self.session.detection.case)
+    }
+
+    /// Re-matches the detection on screen (after the match IoU or the min score changed).
+    pub fn rematch(&mut self) {
+        if let Some(d) = self.loaded.detection.take() {
+            let frame = self.loaded.frame.as_deref();
+            self.loaded.detection = Some(d.rematched(frame, &self.session.detection));
+        }
+        self.rebuild_lines();
+        self.update_highlight();
+    }
+
+    /// The detection on screen and its counts (drawn boxes: score ≥ the session's min score; the
+    /// refined ones for an MLOD case).
+    pub fn detection(&self) -> Option<(&DetectionView, DetectionCounts)> {
+        self.loaded.detection(self.session.detection.min_score)
+    }
+
+    /// Selects a refined box (index into the refinement on screen) or clears the selection: its
+    /// active points stay highlighted while no refined box is hovered.
+    pub fn select_refined(&mut self, k: Option<usize>) {
+        let n = self
+            .loaded
+            .detection
+            .as_ref()
+            .and_then(|d| d.refinement.as_ref())
+            .map_or(0, |r| r.refined.len());
+        self.loaded.selected_refined = k.filter(|&k| k < n);
+        self.update_highlight();
+    }
+
+    /// The proposal and the refined box under the pointer last frame (indices into the detection
+    /// on screen), and the selected refined box.
+    pub fn hovered_detection(&self) -> (Option<usize>, Option<usize>, Option<usize>) {
+        (
+            self.hovered_detection,
+            self.hovered_refined,
+            self.loaded.selected_refined,
+        )
+    }
+
+    /// The refined box whose active points are highlighted now, if any.
+    pub fn highlighted_refined(&self) -> Option<usize> {
+        self.highlighted
+    }
+
+    /// The refined box whose active points should be highlighted: with "show active points" on,
+    /// the hovered one, else the selected one.
+    fn wanted_highlight(&self) -> Option<usize> {
+        let d = self.loaded.detection.as_ref()?;
+        let r = d.refinement.as_ref()?;
+        let s = &self.session.detection;
+        if !(s.show_active && s.show_refined) {
+            return None;
+        }
+        self.hovered_refined
+            .or(self.loaded.selected_refined)
+            .filter(|&k| k < r.refined.len())
+    }
+
+    /// Recolours when the highlighted refined box changed; true if it did.
+    pub(super) fn update_highlight(&mut self) -> bool {
+        let wanted = self.wanted_highlight();
+        if wanted == self.highlighted {
+            return false;
+        }
+        self.highlighted = wanted;
+        let colors = self.colors();
+        if self.scene.set_colors(colors).is_err() {
+            self.rebuild_scene();
+        }
+        true
+    }
+
+    /// Paints the active points of the highlighted refined box over `colors` (one per scene
+    /// point).
+    pub(super) fn paint_active(&self, colors: &mut [[u8; 4]]) {
+        let Some(k) = self.highlighted else { return };
+        let Some(r) = self.loaded.detection.as_ref().and_then(|d| d.refinement.as_ref()) else {
+            return;
+        };
+        let Some(refined) = r.refined.get(k) else { return };
+        // The scene's points are the visible LiDARs' fused points in ascending order.
+        for i in &refined.active {
+            if let Ok(s) = self.scene_index.binary_search(i) {
+                if let Some(c) = colors.get_mut(s) {
+                    *c = ACTIVE_POINT_COLOR;
+                }
+            }
+        }
+    }
+
+    /// The line segments: the grid, then the ground truth (green), stage 1's boxes (blue, false
+    /// positives greyed) and the refined boxes (red) with a line from each proposal's centre to
+    /// its refinement's, in that order (a later layer wins where lines overlap).
+    pub(crate) fn rebuild_lines(&mut self) {
+        let mut lines = grid_lines(80.0, 10.0, -1.8);
+        if self.session.show_ground_truth {
+            if let Some(f) = &self.loaded.frame {
+                for b in &f.boxes {
+                    lines.extend(box_lines(b.box3d.corners(), GT_COLOR, true));
+                }
+            }
+        }
+        let settings = self.session.detection;
+        let Some(d) = self.loaded.detection.as_ref() else {
+            self.scene.set_lines(lines);
+            return;
+        };
+        let color = |o: &PredOutcome, tp: [u8; 4], fp: [u8; 4]| match o {
+            PredOutcome::FalsePositive { .. } => fp,
+            _ => tp,
+        };
+        if settings.show {
+            for (det, o) in d.detections.iter().zip(&d.outcomes) {
+                if det.score >= settings.min_score {
+                    let c = color(o, PROPOSAL_COLOR, FALSE_POSITIVE_COLOR);
+                    lines.extend(box_lines(det.box3d.corners(), c, true));
+                }
+            }
+        }
+        if let Some(r) = d.refinement.as_ref().filter(|_| settings.show_refined) {
+            let centre = |c: [f64; 3]| [c[0] as f32, c[1] as f32, c[2] as f32];
+            for (x, o) in r.refined.iter().zip(&r.outcomes) {
+                if x.detection.score < settings.min_score {
+                    continue;
+                }
+                if let Some(p) = d.detections.get(x.proposal) {
+                    lines.push(LineVertex::new(centre(p.box3d.center), LINK_COLOR));
+                    lines.push(LineVertex::new(centre(x.detection.box3d.center), LINK_COLOR));
+                }
+                let c = color(o, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR);
+                lines.extend(box_lines(x.detection.box3d.corners(), c, true));
+            }
+        }
+        self.scene.set_lines(lines);
+    }
+}

@@ -1,0 +1,149 @@
+//! The Detection panel: pick a case (the six stage-1 cases and MLOD-I/F/R), run it on the sample on
+//! screen, switch its layers on and off and read its boxes matched against the ground truth (for
+//! an MLOD case the refined boxes, with the proposals' counts beside them).
+
+use eframe::egui;
+use egui::{Color32, RichText};
+
+use super::Panels;
+use crate::detect::Case;
+use crate::gui::state::{
+    color32, Action, DetectionCounts, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR, REFINED_COLOR,
+    REFINED_FALSE_POSITIVE_COLOR,
+};
+
+pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    ui.heading("Detection");
+    let mut run = false;
+    let mut rematch = false;
+    let mut redraw = false;
+    ui.horizontal(|ui| {
+        let d = &mut p.session.detection;
+        egui::ComboBox::new("mlod_detector_case", "case")
+            .selected_text(d.case.paper_name())
+            .show_ui(ui, |ui| {
+                for c in Case::EVERY {
+                    ui.selectable_value(&mut d.case, c, c.paper_name());
+                }
+            });
+        let label = if p.loaded.detecting {
+            "Running…"
+        } else {
+            "Run (D)"
+        };
+        run |= ui
+            .add_enabled(p.loaded.frame.is_some(), egui::Button::new(label))
+            .on_hover_text("Run the detector on this sample with the current perturbation")
+            .clicked();
+    });
+    let d = &mut p.session.detection;
+    let mlod = d.case.is_mlod();
+    ui.checkbox(&mut d.auto_run, "run again on every change")
+        .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
+    rematch |= ui
+        .add(egui::Slider::new(&mut d.min_score, 0.05..=0.95).text("min score"))
+        .changed();
+    ui.horizontal(|ui| {
+        ui.label("true positive at 3D IoU ≥");
+        rematch |= ui.radio_value(&mut d.match_iou, 0.5, "0.5").changed();
+        rematch |= ui.radio_value(&mut d.match_iou, 0.7, "0.7").changed();
+    });
+    ui.horizontal(|ui| {
+        let proposals = if mlod { "proposals" } else { "proposal boxes" };
+        redraw |= ui
+            .checkbox(
+                &mut d.show,
+                RichText::new(proposals).color(color32(PROPOSAL_COLOR)),
+            )
+            .changed();
+        if mlod {
+            redraw |= ui
+                .checkbox(
+                    &mut d.show_refined,
+                    RichText::new("refinements").color(color32(REFINED_COLOR)),
+                )
+                .on_hover_text("The refined boxes and a line from each proposal's centre to its refinement's")
+                .changed();
+        }
+    });
+    if mlod {
+        ui.checkbox(&mut d.show_active, "show active points")
+            .on_hover_text(
+                "Highlight the points that won the refiner's max-pool (§V-C) for the hovered refined \
+                 box, or the one clicked (click empty space to clear)",
+            );
+    }
+    let stale = p.loaded.detection_is_stale(p.session.detection.case);
+    let min_score = p.session.detection.min_score;
+    match p.loaded.detection(min_score) {
+        Some((v, c)) => {
+            let refined = v.refinement.is_some();
+            let (tp, fp) = if refined {
+                (REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR)
+            } else {
+                (PROPOSAL_COLOR, FALSE_POSITIVE_COLOR)
+            };
+            let what = if refined { "refined boxes" } else { "proposals" };
+            ui.horizontal_wrapped(|ui| {
+                ui.label(format!("{}:", v.case.paper_name()));
+                ui.label(format!("{} {what}", c.shown));
+                ui.label(RichText::new(format!("{} TP", c.true_positives)).color(color32(tp)));
+                ui.label(RichText::new(format!("{} FP", c.false_positives)).color(color32(fp)));
+                ui.label(
+                    RichText::new(format!(
+                        "{} of {} {} missed",
+                        c.missed,
+                        c.ground_truth,
+                        v.categories.join("/")
+                    ))
+                    .color(color32(GT_COLOR)),
+                );
+            });
+            if refined {
+                proposal_line(ui, &v.proposal_counts(min_score));
+                if let Some(k) = p.loaded.selected_refined {
+                    ui.label(
+                        RichText::new(format!("selected: refined box #{k} (click empty space to clear)"))
+                            .weak(),
+                    );
+                }
+            }
+            if p.shell.show_timings {
+                let steps = if refined {
+                    "weights, fuse, stage 1, gather, refiner"
+                } else {
+                    "weights, fuse, voxelise, network, NMS"
+                };
+                ui.label(RichText::new(format!("{:.0} ms ({steps})", v.millis)).weak());
+            }
+            if stale {
+                ui.label(
+                    RichText::new("stale: the perturbation or the case changed since this run. Run again")
+                        .color(Color32::from_rgb(240, 190, 80)),
+                );
+            }
+        }
+        None => {
+            ui.label(RichText::new("no detection on this sample yet").weak());
+        }
+    }
+    if run {
+        p.act(Action::RunDetector);
+    }
+    if rematch {
+        p.act(Action::Rematch);
+    } else if redraw {
+        p.act(Action::RebuildLines);
+    }
+}
+
+/// The proposals' counts under the refined ones, weaker, so that the refiner's gain shows.
+fn proposal_line(ui: &mut egui::Ui, c: &DetectionCounts) {
+    ui.label(
+        RichText::new(format!(
+            "proposals: {} TP, {} FP, {} missed",
+            c.true_positives, c.false_positives, c.missed
+        ))
+        .weak(),
+    );
+}
