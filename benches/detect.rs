@@ -93,13 +93,7 @@ fn bench_refine(c: &mut Criterion) {
     let refiner = Refiner::load_shipped(&default_models_dir()).unwrap_or_else(|_| {
         let cfg = RefinerConfig::default();
         let (_, varmap) = RefinerNet::trainable(&cfg, 1).expect("network");
-        let tensors: std::collections::HashMap<String, candle_core::Tensor> = varmap
-            .data()
-            .lock()
-            .expect("lock")
-            .iter()
-            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-            .collect();
+        let tensors = mlod::detect::checkpoint::varmap_tensors(&varmap).expect("tensors");
         Refiner::from_tensors(cfg, &|n| tensors.get(n).cloned(), Decoding::default()).expect("refiner")
     });
     // 50 proposals: Input Fusion's, topped up with shifted copies when it gives fewer.

@@ -11,6 +11,16 @@ use mlod::detect::Case;
 use mlod::lyft::Dataset;
 use mlod::pipeline::FuseParams;
 
+/// `json` equals the committed fixture at `path` byte for byte (with `bless`: written there first).
+fn check_fixture(path: &Path, json: &str, bless: bool, what: &str) {
+    if bless {
+        mlod::io::write_atomic(path, json.as_bytes()).unwrap();
+    }
+    let committed = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("{}: {e} (run with MLOD_BLESS=1 to create it)", path.display()));
+    assert!(committed == json, "{what} differ from {}", path.display());
+}
+
 #[test]
 fn shipped_weights_reproduce_committed_detections() {
     let models = default_models_dir();
@@ -39,16 +49,7 @@ fn shipped_weights_reproduce_committed_detections() {
             let dets = det.detect(&frame, &FuseParams::default()).unwrap();
             let json = serde_json::to_string_pretty(&dets).unwrap() + "\n";
             let path = fixtures.join(format!("{case}-{}.json", &token[..12]));
-            if bless {
-                mlod::io::write_atomic(&path, json.as_bytes()).unwrap();
-            }
-            let committed = std::fs::read_to_string(&path)
-                .unwrap_or_else(|e| panic!("{}: {e} (run with MLOD_BLESS=1 to create it)", path.display()));
-            assert!(
-                committed == json,
-                "{case} on {token}: detections differ from {}",
-                path.display()
-            );
+            check_fixture(&path, &json, bless, &format!("{case} on {token}: detections"));
             checked += 1;
         }
     }
@@ -183,16 +184,7 @@ fn shipped_refiner_reproduces_committed_refinements() {
                 .collect();
             let json = serde_json::to_string_pretty(&rows).unwrap() + "\n";
             let path = fixtures.join(format!("{case}-a0.04-{}.json", &token[..12]));
-            if bless {
-                mlod::io::write_atomic(&path, json.as_bytes()).unwrap();
-            }
-            let committed = std::fs::read_to_string(&path)
-                .unwrap_or_else(|e| panic!("{}: {e} (run with MLOD_BLESS=1 to create it)", path.display()));
-            assert!(
-                committed == json,
-                "{case} on {token}: refinements differ from {}",
-                path.display()
-            );
+            check_fixture(&path, &json, bless, &format!("{case} on {token}: refinements"));
             // Every refinement points at a proposal of its run.
             assert!(run.refined.iter().all(|r| r.proposal < run.proposals.len()));
         }

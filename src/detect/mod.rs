@@ -21,6 +21,7 @@
 
 pub mod anchors;
 pub mod calibrate;
+pub mod checkpoint;
 pub mod config;
 pub mod gt_sampling;
 pub mod infer;
@@ -29,12 +30,13 @@ pub mod net;
 pub mod optim;
 pub mod train;
 pub mod voxel;
+pub mod warm_start;
 pub mod weights;
 
 use serde::{Deserialize, Serialize};
 
 use crate::lyft::{Frame, LidarChannel};
-use crate::pipeline::FuseParams;
+use crate::pipeline::{FuseParams, FusedCloud};
 
 /// A detector's output: a base-frame box, its confidence in [0, 1] (calibrated by temperature
 /// scaling in Result Fusion) and its Lyft category.
@@ -222,7 +224,14 @@ pub trait Detector: Send + Sync {
     /// business.
     fn categories(&self) -> Vec<String>;
 
-    /// Fuses the frame with `params` (so perturbations reach the auxiliary LiDARs) and detects
-    /// objects; boxes are in the base frame, highest score first.
-    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError>;
+    /// Detects objects on `cloud`, the frame fused by the caller (`pipeline::fuse`); boxes are in
+    /// the base frame, highest score first. A caller that needs the cloud too (the MLOD refiner)
+    /// fuses once.
+    fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError>;
+
+    /// Fuses the frame with `params` (so perturbations reach the auxiliary LiDARs) and detects.
+    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
+        let cloud = crate::pipeline::fuse(frame, params)?;
+        self.detect_fused(frame, &cloud)
+    }
 }

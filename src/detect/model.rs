@@ -27,7 +27,7 @@ use super::weights::{encode_safetensors, read_weights, Manifest};
 use super::{Case, DetectError, Detection, Detector};
 use crate::geometry::{nms, vote, Box3d, IouKind};
 use crate::lyft::{Frame, LidarChannel};
-use crate::pipeline::{fuse, FuseParams, FusedCloud};
+use crate::pipeline::FusedCloud;
 
 /// The points each branch of a case sees, as slices of the fused cloud (`None`: LiDAR absent).
 pub fn branch_points<'a>(case: Case, cloud: &'a FusedCloud) -> Vec<Option<PointsRef<'a>>> {
@@ -162,15 +162,7 @@ impl Stage1Model {
             .varmap
             .as_ref()
             .ok_or_else(|| DetectError::BadParameter("only a trainable model can be saved".into()))?;
-        let mut tensors: BTreeMap<String, Tensor> = {
-            let data = varmap
-                .data()
-                .lock()
-                .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
-            data.iter()
-                .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-                .collect()
-        };
+        let mut tensors = super::checkpoint::varmap_tensors(varmap)?;
         tensors.extend(extra);
         let mut meta = extra_meta;
         meta.insert(
@@ -316,7 +308,7 @@ impl Detector for Stage1Model {
         vec![self.config.anchor.category.clone()]
     }
 
-    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
+    fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
         if let Some(ch) = self.config.case.channel() {
             if frame.lidar(ch).is_none() {
                 return Err(DetectError::MissingLidar {
@@ -325,8 +317,7 @@ impl Detector for Stage1Model {
                 });
             }
         }
-        let cloud = fuse(frame, params)?;
-        self.detect_cloud(&cloud)
+        self.detect_cloud(cloud)
     }
 }
 
@@ -418,9 +409,8 @@ impl Detector for ResultFusion {
         c
     }
 
-    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
-        let cloud = fuse(frame, params)?;
-        self.detect_cloud(&cloud)
+    fn detect_fused(&self, _frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+        self.detect_cloud(cloud)
     }
 }
 
@@ -514,6 +504,7 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
 mod tests {
     use super::*;
     use crate::lyft::Dataset;
+    use crate::pipeline::{fuse, FuseParams};
 
     fn sample_frame() -> Frame {
         let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();

@@ -133,20 +133,3 @@ impl AdamW {
         Ok(())
     }
 }
-
-/// The rows of a loss-curve CSV (header skipped) whose step, the first column, is before `step`:
-/// what a resumed run keeps (rows written after its checkpoint belong to the lost run).
-pub fn loss_rows_before(csv: &std::path::Path, step: u64) -> Vec<String> {
-    std::fs::read_to_string(csv)
-        .unwrap_or_default()
-        .lines()
-        .skip(1)
-        .filter(|l| {
-            l.split(',')
-                .next()
-                .and_then(|s| s.parse::<u64>().ok())
-                .is_some_and(|s| s < step)
-        })
-        .map(str::to_string)
-        .collect()
-}

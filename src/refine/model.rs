@@ -258,25 +258,7 @@ impl Refiner {
                 unrefined: false,
             });
         }
-        out.sort_by(|a, b| {
-            b.detection
-                .score
-                .total_cmp(&a.detection.score)
-                .then(a.proposal.cmp(&b.proposal))
-        });
-        if let Some(iou) = self.decoding.nms_iou {
-            let boxes: Vec<Box3d> = out.iter().map(|r| r.detection.box3d).collect();
-            let scores: Vec<f32> = out.iter().map(|r| r.detection.score).collect();
-            let keep = nms(&boxes, &scores, iou, IouKind::ThreeD);
-            let keep: std::collections::HashSet<usize> = keep.into_iter().collect();
-            out = out
-                .into_iter()
-                .enumerate()
-                .filter(|(k, _)| keep.contains(k))
-                .map(|(_, r)| r)
-                .collect();
-        }
-        Ok(out)
+        Ok(rank_and_suppress(out, self.decoding.nms_iou))
     }
 }
 
@@ -284,31 +266,47 @@ impl Refiner {
 /// refined box's score made again from its proposal's and the head's probability, then the NMS.
 /// What `mlod train tune-refiner` compares without running the network again.
 pub fn redecode(run: &MlodRun, d: Decoding) -> Vec<Detection> {
-    let mut dets: Vec<Detection> = run
+    let rescored: Vec<Refined> = run
         .refined
         .iter()
         .map(|r| {
             let stage1 = run.proposals.get(r.proposal).map_or(r.refined_score, |p| p.score);
-            Detection {
-                score: if r.unrefined {
-                    stage1
-                } else {
-                    d.score.combine(stage1, r.refined_score)
-                },
-                ..r.detection.clone()
+            let mut r = r.clone();
+            if !r.unrefined {
+                r.detection.score = d.score.combine(stage1, r.refined_score);
+            } else {
+                r.detection.score = stage1;
             }
+            r
         })
         .collect();
-    dets.sort_by(|a, b| b.score.total_cmp(&a.score));
-    if let Some(iou) = d.nms_iou {
-        let boxes: Vec<Box3d> = dets.iter().map(|x| x.box3d).collect();
-        let scores: Vec<f32> = dets.iter().map(|x| x.score).collect();
-        let mut keep = nms(&boxes, &scores, iou, IouKind::ThreeD);
-        keep.sort_unstable();
-        dets = keep.into_iter().map(|k| dets[k].clone()).collect();
-        dets.sort_by(|a, b| b.score.total_cmp(&a.score));
+    rank_and_suppress(rescored, d.nms_iou)
+        .into_iter()
+        .map(|r| r.detection)
+        .collect()
+}
+
+/// Best score first (ties: the earlier proposal first), then the decoding's 3D-IoU NMS if any.
+fn rank_and_suppress(mut out: Vec<Refined>, nms_iou: Option<f64>) -> Vec<Refined> {
+    out.sort_by(|a, b| {
+        b.detection
+            .score
+            .total_cmp(&a.detection.score)
+            .then(a.proposal.cmp(&b.proposal))
+    });
+    if let Some(iou) = nms_iou {
+        let boxes: Vec<Box3d> = out.iter().map(|r| r.detection.box3d).collect();
+        let scores: Vec<f32> = out.iter().map(|r| r.detection.score).collect();
+        let keep: std::collections::HashSet<usize> =
+            nms(&boxes, &scores, iou, IouKind::ThreeD).into_iter().collect();
+        out = out
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| keep.contains(k))
+            .map(|(_, r)| r)
+            .collect();
     }
-    dets
+    out
 }
 
 /// A proposal's sampled points, ready for the network.
@@ -364,19 +362,29 @@ impl Mlod {
         &self.refiner
     }
 
-    /// Proposals, refinements and the cloud of one frame.
+    /// Proposals, refinements and the cloud of one frame (fused once, for both stages).
     pub fn run(&self, frame: &Frame, params: &FuseParams) -> Result<MlodRun, DetectError> {
-        let proposals = self.stage1.detect(frame, params)?;
         let cloud = fuse(frame, params)?;
-        let refined = self
-            .refiner
-            .refine(&cloud, &proposals)
-            .map_err(|e| DetectError::Refiner(e.to_string()))?;
+        let (proposals, refined) = self.run_fused(frame, &cloud)?;
         Ok(MlodRun {
             proposals,
             refined,
             cloud,
         })
+    }
+
+    /// Stage 1's proposals on `cloud` and their refinements.
+    fn run_fused(
+        &self,
+        frame: &Frame,
+        cloud: &FusedCloud,
+    ) -> Result<(Vec<Detection>, Vec<Refined>), DetectError> {
+        let proposals = self.stage1.detect_fused(frame, cloud)?;
+        let refined = self
+            .refiner
+            .refine(cloud, &proposals)
+            .map_err(|e| DetectError::Refiner(e.to_string()))?;
+        Ok((proposals, refined))
     }
 }
 
@@ -389,13 +397,9 @@ impl Detector for Mlod {
         self.stage1.categories()
     }
 
-    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
-        Ok(self
-            .run(frame, params)?
-            .refined
-            .into_iter()
-            .map(|r| r.detection)
-            .collect())
+    fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+        let (_, refined) = self.run_fused(frame, cloud)?;
+        Ok(refined.into_iter().map(|r| r.detection).collect())
     }
 }
 

@@ -35,6 +35,7 @@ use super::net::{proposal_features, RefinerConfig, RefinerNet, PROPOSAL_FEATURES
 use super::points::{push_row, sample, CloudIndex, ProposalPoints};
 use super::proposals::{load, ProposalEntry};
 use super::RefineError;
+use crate::detect::checkpoint::{loss_rows_before, restore_varmap, varmap_tensors, write_loss_csv};
 use crate::detect::optim::AdamW;
 use crate::detect::weights::{
     encode_safetensors, file_name_of, folder_of, read_weights, sha256_hex, Manifest, ModelEntry,
@@ -356,15 +357,7 @@ fn save_tensors(
     extra: BTreeMap<String, Tensor>,
     meta: BTreeMap<String, String>,
 ) -> Result<Vec<u8>, RefineError> {
-    let mut tensors: BTreeMap<String, Tensor> = {
-        let data = varmap
-            .data()
-            .lock()
-            .map_err(|_| RefineError::BadParameter("variable map lock poisoned".into()))?;
-        data.iter()
-            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-            .collect()
-    };
+    let mut tensors = varmap_tensors(varmap)?;
     tensors.extend(extra);
     Ok(encode_safetensors(&tensors, &meta)?)
 }
@@ -398,13 +391,7 @@ fn save_checkpoint(
     meta.insert("train.elapsed_s".into(), format!("{}", ck.elapsed_s));
     meta.insert("train.seed".into(), cfg.seed.to_string());
     crate::io::write_atomic(&cfg.checkpoint, &save_tensors(varmap, extra, meta)?)?;
-    let mut csv = String::from(RefineStep::CSV_HEADER);
-    csv.push('\n');
-    for r in &ck.rows {
-        csv.push_str(r);
-        csv.push('\n');
-    }
-    crate::io::write_atomic(&cfg.loss_csv, csv.as_bytes())?;
+    write_loss_csv(&cfg.loss_csv, RefineStep::CSV_HEADER, &ck.rows)?;
     Ok(())
 }
 
@@ -428,23 +415,13 @@ fn load_checkpoint(
     if meta("train.seed")? != cfg.seed.to_string() {
         return Err(bad(format!("checkpoint seed differs from --seed {}", cfg.seed)));
     }
-    let get = |name: &str| {
-        w.tensors
-            .get(name)
-            .ok_or_else(|| bad(format!("tensor {name} missing")))
-    };
-    {
-        let data = varmap.data().lock().map_err(|_| bad("lock poisoned".into()))?;
-        for (name, var) in data.iter() {
-            var.set(get(name)?)?;
-        }
-    }
+    restore_varmap(varmap, |n| w.tensors.get(n).cloned()).map_err(bad)?;
     let num = |k: &str| -> Result<f64, RefineError> {
         meta(k)?.parse::<f64>().map_err(|e| bad(format!("{k}: {e}")))
     };
     let step = num("train.step")? as u64;
     opt.restore(|n| w.tensors.get(n).cloned(), step).map_err(bad)?;
-    let rows = crate::detect::optim::loss_rows_before(&cfg.loss_csv, step);
+    let rows = loss_rows_before(&cfg.loss_csv, step);
     Ok(Checkpoint {
         step,
         skipped: num("train.skipped")? as u64,
