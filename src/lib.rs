@@ -5,6 +5,7 @@
 //! Dependencies point one way: `gui` → `pipeline` → {`uncertainty`, …} → {`lyft`, `geometry`}.
 //! Nothing outside `gui` depends on egui, eframe or wgpu.
 
+pub mod calib;
 pub mod color;
 pub mod detect;
 pub mod eval;

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cli;
 
-use cli::{analyze, data, detect, eval, export, table1, train, uncertainty, window};
+use cli::{analyze, calibrate, data, detect, eval, export, table1, train, uncertainty, window};
 
 #[derive(Parser)]
 #[command(
@@ -45,6 +45,10 @@ enum Command {
     /// Write the fused, perturbed cloud of one sample with tr(Ξ) (and Ξ) per point as PLY or PCD.
     #[command(after_help = cli::EXPORT_EXAMPLES)]
     Export(export::ExportArgs),
+    /// Online calibration: re-estimate the auxiliary LiDARs' drifted extrinsics by point-to-plane
+    /// ICP and report the error before and after, degenerate directions and the covariance.
+    #[command(after_help = cli::CALIBRATE_EXAMPLES)]
+    Calibrate(calibrate::CalibrateArgs),
     /// Show a sample of a Lyft-format dataset: LiDARs, extrinsics T^b_l and boxes in the base frame.
     #[command(after_help = cli::INSPECT_EXAMPLES)]
     Inspect(data::InspectArgs),
@@ -104,6 +108,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::PlaneFit(a)) => uncertainty::plane_fit(a),
         Some(Command::Fuse(a)) => uncertainty::fuse_cmd(a),
         Some(Command::Export(a)) => export::run(a),
+        Some(Command::Calibrate(a)) => calibrate::run(a),
         Some(Command::Inspect(a)) => data::inspect(a),
         Some(Command::Synth(a)) => data::synth(a),
         Some(Command::Train(c)) => train::train(c),

@@ -17,6 +17,7 @@ use nalgebra::Matrix3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::calib::{self, CalibError, Calibration, IcpConfig, LidarCalibration, OcPrior};
 use crate::geometry::Pose;
 use crate::lyft::{Frame, LidarChannel, LidarScan};
 use crate::uncertainty::propagate::{covariance_cloud, PARALLEL_THRESHOLD};
@@ -34,6 +35,11 @@ pub struct FuseParams {
     pub linearization: Linearization,
     /// Manual offsets per auxiliary LiDAR, added to the sampled perturbation.
     pub manual: BTreeMap<LidarChannel, ExtrinsicNoise>,
+    /// Online calibration (the (OC) cases): the auxiliary LiDARs are fused with ICP's extrinsics
+    /// instead of the drifted ones, and their points' Ξ follows the calibration's prior. Valid
+    /// only for the sample and the drift it was computed from ([`calibrate`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<Calibration>,
 }
 
 impl FuseParams {
@@ -69,8 +75,11 @@ pub struct FusedLidar {
     pub nominal: Pose,
     /// The perturbation (ρ, φ) applied to it (zero for the primary).
     pub noise: ExtrinsicNoise,
-    /// The extrinsic the points were fused with.
+    /// The extrinsic the points were fused with (ICP's when `calibrated`).
     pub applied: Pose,
+    /// Whether `applied` comes from online calibration.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub calibrated: bool,
 }
 
 /// A fused point cloud in the base frame, structure-of-arrays.
@@ -125,6 +134,10 @@ pub enum PipelineError {
     BadParameter(String),
     #[error("LiDAR {channel}: {what}")]
     BadLidar { channel: LidarChannel, what: String },
+    #[error("online calibration: {0}")]
+    Calib(#[from] CalibError),
+    #[error("online calibration: {0}")]
+    StaleCalibration(String),
 }
 
 /// One LiDAR of a frame as `fuse` sees it: its points' place in the fused arrays, its nominal,
@@ -136,6 +149,7 @@ struct LidarSetup<'a> {
     nominal: Pose,
     noise: ExtrinsicNoise,
     applied: Pose,
+    calibrated: bool,
     r: Matrix3<f64>,
     t: nalgebra::Vector3<f64>,
     kernel: TraceKernel,
@@ -151,6 +165,14 @@ fn lidar_setups<'a>(frame: &'a Frame, params: &FuseParams) -> Result<Vec<LidarSe
         phi: Matrix3::zeros(),
         z: scaled.z,
     };
+    if let Some(cal) = &params.calibration {
+        if cal.sample_token != frame.sample_token {
+            return Err(PipelineError::StaleCalibration(format!(
+                "it was computed for sample {}, not {}: calibrate again",
+                cal.sample_token, frame.sample_token
+            )));
+        }
+    }
     let mut start = 0;
     let mut out = Vec::new();
     for (index, scan) in frame.lidars().enumerate() {
@@ -163,11 +185,41 @@ fn lidar_setups<'a>(frame: &'a Frame, params: &FuseParams) -> Result<Vec<LidarSe
         }
         let noise = params.noise_for(channel)?;
         let nominal = scan.info.extrinsic;
-        let applied = noise.apply(&nominal);
+        let drifted = noise.apply(&nominal);
+        let cal = match (&params.calibration, index) {
+            (Some(c), 1..) => c.lidar(channel),
+            _ => None,
+        };
+        let applied = match cal {
+            Some(l) => {
+                let moved = crate::calib::PoseError::between(&l.start, &drifted);
+                if moved.rot_deg > 1e-9 || moved.trans_m > 1e-9 {
+                    return Err(PipelineError::StaleCalibration(format!(
+                        "{channel} was calibrated from another drifted extrinsic (the perturbation changed): calibrate again"
+                    )));
+                }
+                l.extrinsic
+            }
+            None => drifted,
+        };
         let r = applied.rotation.to_rotation_matrix().into_inner();
         let t = applied.translation.vector;
-        let prior = if index == 0 { &primary_prior } else { &scaled };
-        let kernel = TraceKernel::new(&r, &t, prior, params.linearization);
+        let kernel = match (cal, &params.calibration) {
+            (Some(l), Some(c)) if c.prior == OcPrior::Icp => {
+                let sigma = nalgebra::Matrix6::from_fn(|i, j| l.covariance[i][j]);
+                if !sigma.iter().all(|v| v.is_finite()) {
+                    return Err(PipelineError::BadLidar {
+                        channel,
+                        what: "its calibration's covariance is not finite".into(),
+                    });
+                }
+                TraceKernel::with_covariance(&r, &t, &sigma, &scaled.z, params.linearization)
+            }
+            _ => {
+                let prior = if index == 0 { &primary_prior } else { &scaled };
+                TraceKernel::new(&r, &t, prior, params.linearization)
+            }
+        };
         let range = start..start + scan.points.len();
         start = range.end;
         out.push(LidarSetup {
@@ -177,6 +229,7 @@ fn lidar_setups<'a>(frame: &'a Frame, params: &FuseParams) -> Result<Vec<LidarSe
             nominal,
             noise,
             applied,
+            calibrated: cal.is_some(),
             r,
             t,
             kernel,
@@ -221,6 +274,7 @@ pub fn fuse(frame: &Frame, params: &FuseParams) -> Result<FusedCloud, PipelineEr
             nominal: s.nominal,
             noise: s.noise,
             applied: s.applied,
+            calibrated: s.calibrated,
         });
     }
     Ok(out)
@@ -273,6 +327,83 @@ fn transform_and_trace(
             .zip(otr.par_chunks_mut(CHUNK))
             .enumerate()
             .for_each(|(c, (((x, y), z), tr))| run(c * CHUNK, x, y, z, tr));
+    }
+}
+
+/// Online calibration of a frame (the (OC) cases): every auxiliary LiDAR is aligned by
+/// point-to-plane ICP to the top LiDAR's cloud, starting from the extrinsic `params` drifts it
+/// to (the perturbation and manual offsets; any calibration already in `params` is ignored). The
+/// target's kd-tree and normals are built once for all auxiliaries. Put the result in
+/// [`FuseParams::calibration`] to fuse with the corrected extrinsics.
+pub fn calibrate(
+    frame: &Frame,
+    params: &FuseParams,
+    config: &IcpConfig,
+    prior: OcPrior,
+) -> Result<Calibration, PipelineError> {
+    config.validate()?;
+    let theta = params.prior.scaled(params.effective_prior_alpha())?;
+    let mut theta6 = nalgebra::Matrix6::zeros();
+    theta6.fixed_view_mut::<3, 3>(0, 0).copy_from(&theta.p);
+    theta6.fixed_view_mut::<3, 3>(3, 3).copy_from(&theta.phi);
+    let clock = std::time::Instant::now();
+    let target = {
+        let top = &frame.primary;
+        let pts = &top.points;
+        let local = calib::voxel_downsample(&pts.x, &pts.y, &pts.z, config.target_voxel, config.max_range);
+        // The primary's extrinsic is the base frame (identity on Lyft data), applied anyway.
+        let base: Vec<[f32; 3]> = local
+            .iter()
+            .map(|p| {
+                let q = top.info.extrinsic.transform_point(&nalgebra::Point3::new(
+                    p[0] as f64,
+                    p[1] as f64,
+                    p[2] as f64,
+                ));
+                [q.x as f32, q.y as f32, q.z as f32]
+            })
+            .collect();
+        calib::Target::new(base, config).map_err(|e| with_channel(e, LidarChannel::Top))?
+    };
+    let target_ms = clock.elapsed().as_secs_f64() * 1e3;
+    let mut lidars = Vec::new();
+    for scan in &frame.auxiliaries {
+        let channel = scan.info.channel;
+        let start = params.noise_for(channel)?.apply(&scan.info.extrinsic);
+        let pts = &scan.points;
+        let source = calib::voxel_downsample(&pts.x, &pts.y, &pts.z, config.source_voxel, config.max_range);
+        let out =
+            calib::align(&source, &start, &target, &theta6, config).map_err(|e| with_channel(e, channel))?;
+        lidars.push(LidarCalibration {
+            channel,
+            start,
+            extrinsic: out.extrinsic,
+            covariance: std::array::from_fn(|i| std::array::from_fn(|j| out.covariance[(i, j)])),
+            converged: out.converged,
+            iterations: out.iterations,
+            fitness: out.fitness,
+            rmse: out.rmse,
+            correspondences: out.correspondences,
+            source_points: source.len(),
+            target_points: target.points.len(),
+            eigenvalues: out.eigenvalues,
+            degenerate: out.degenerate,
+            ms: out.ms,
+        });
+    }
+    Ok(Calibration {
+        sample_token: frame.sample_token.clone(),
+        prior,
+        config: *config,
+        lidars,
+        target_ms,
+    })
+}
+
+fn with_channel(e: CalibError, channel: LidarChannel) -> PipelineError {
+    PipelineError::BadLidar {
+        channel,
+        what: e.to_string(),
     }
 }
 

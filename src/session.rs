@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::calib::{Calibration, OcPrior};
 use crate::color::ColorParams;
 use crate::detect::Case;
 use crate::io::{write_atomic, IoError};
@@ -56,6 +57,28 @@ pub struct Session {
     /// Detection settings (what the Detection panel shows).
     #[serde(default)]
     pub detection: DetectionSettings,
+    /// Online calibration: the last ICP result and whether the corrected cloud is shown.
+    #[serde(default, skip_serializing_if = "OcSession::is_unset")]
+    pub oc: OcSession,
+}
+
+/// The online calibration of a session (the window's "calibrate (ICP)").
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct OcSession {
+    /// The last calibration of the sample on screen, kept so a session reopens with the same
+    /// corrected extrinsics (ICP is not rerun).
+    pub calibration: Option<Calibration>,
+    /// Fuse with the corrected extrinsics instead of the drifted ones.
+    pub show_corrected: bool,
+    /// The uncertainty the calibrated LiDARs' points carry (and the tr(Ξ) colouring shows).
+    pub prior: OcPrior,
+}
+
+impl OcSession {
+    pub fn is_unset(&self) -> bool {
+        *self == Self::default()
+    }
 }
 
 /// The Detection panel's settings.
@@ -93,6 +116,20 @@ impl Default for DetectionSettings {
 }
 
 impl Session {
+    /// The fuse parameters of the view: the perturbation, plus the calibration when the corrected
+    /// cloud is shown (with the session's choice of prior).
+    pub fn fuse_params(&self) -> FuseParams {
+        let mut p = self.fuse.clone();
+        p.calibration = match (&self.oc.calibration, self.oc.show_corrected) {
+            (Some(c), true) => Some(Calibration {
+                prior: self.oc.prior,
+                ..c.clone()
+            }),
+            _ => None,
+        };
+        p
+    }
+
     pub fn new(dataset: PathBuf) -> Self {
         Self {
             version: SESSION_VERSION,
@@ -107,6 +144,7 @@ impl Session {
             show_ground_truth: true,
             point_size: 2.0,
             detection: DetectionSettings::default(),
+            oc: OcSession::default(),
         }
     }
 

@@ -663,6 +663,99 @@ fn mlod_without_a_refiner_is_an_error_toast_and_keeps_the_state() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn calibrate_corrects_the_cloud_and_the_session_keeps_it() {
+    let mut h = harness(Some(session_at(0.1, ColorMode::Trace)));
+    let drifted = h.state().fused().unwrap().clone();
+    assert!(h.query_by_label_contains("not calibrated").is_some());
+    h.get_by_label("calibrate (ICP)").click();
+    h.run_steps(3);
+    let app = h.state();
+    let cal = app.session().oc.calibration.clone().expect("calibrated");
+    assert!(app.session().oc.show_corrected);
+    let frame = app.frame().unwrap();
+    let fused = app.fused().unwrap();
+    assert!(fused.lidars[1].calibrated && fused.lidars[2].calibrated && !fused.lidars[0].calibrated);
+    for l in &cal.lidars {
+        let truth = frame.lidar(l.channel).unwrap().info.extrinsic;
+        let (before, after) = (l.error_before(&truth), l.error(&truth));
+        assert!(
+            after.rot_deg < 0.1 * before.rot_deg,
+            "{:?}: {before:?} -> {after:?}",
+            l.channel
+        );
+    }
+    // The cloud on screen is the library's fuse with that calibration, and its auxiliary points
+    // carry ICP's (smaller) uncertainty.
+    let mut params = app.session().fuse.clone();
+    params.calibration = Some(cal.clone());
+    let lib = mlod::pipeline::fuse(frame, &params).unwrap();
+    assert_eq!(lib.x, fused.x);
+    assert_eq!(lib.trace, fused.trace);
+    let aux = fused.lidars[1].range.clone();
+    let mean = |t: &[f32]| t.iter().map(|&v| v as f64).sum::<f64>() / t.len() as f64;
+    assert!(mean(&fused.trace[aux.clone()]) < 0.2 * mean(&drifted.trace[aux.clone()]));
+    // The panel shows the error before → after per LiDAR.
+    // (two LiDAR rows and the caption)
+    assert_eq!(h.query_all_by_label_contains(" -> ").count(), 3);
+    // A saved session reopens with the same corrected cloud, pixel for pixel (ICP not rerun);
+    // the pointer leaves the window first so no hover differs.
+    h.event(egui::Event::PointerGone);
+    h.run_steps(2);
+    let img_a = h.render().unwrap();
+    let session = h.state().current_session();
+    let json = serde_json::to_string(&session).unwrap();
+    let mut b = harness(Some(serde_json::from_str(&json).unwrap()));
+    assert_eq!(b.state().fused().unwrap().x, lib.x);
+    let img_b = b.render().unwrap();
+    if std::env::var_os("MLOD_DEBUG_IMG").is_some() {
+        img_a.save("/tmp/oc_a.png").unwrap();
+        img_b.save("/tmp/oc_b.png").unwrap();
+    }
+    assert!(
+        img_a.as_raw() == img_b.as_raw(),
+        "the session reopens differently"
+    );
+    // The toggle shows the drifted cloud again; a new drift drops the calibration.
+    h.state_mut().session_mut().oc.show_corrected = false;
+    h.state_mut().mark_fuse();
+    h.run_steps(2);
+    assert_eq!(h.state().fused().unwrap().x, drifted.x);
+    assert!(h.state().session().oc.calibration.is_some());
+    h.state_mut().session_mut().fuse.perturbation.seed = 9;
+    h.state_mut().mark_fuse();
+    h.run_steps(2);
+    assert!(
+        h.state().session().oc.calibration.is_none(),
+        "a calibration of another drift was kept"
+    );
+}
+
+#[test]
+fn an_oc_case_calibrates_then_detects_on_the_corrected_cloud() {
+    let mut s = session_at(0.1, ColorMode::Source);
+    s.detection.case = Case::InputOc;
+    let mut h = harness(Some(s));
+    h.get_by_label("Run (D)").click();
+    h.run_steps(4);
+    let app = h.state();
+    assert!(app.session().oc.show_corrected && app.session().oc.calibration.is_some());
+    let (view, counts) = app.detection().expect("the (OC) case ran");
+    assert_eq!(view.case, Case::InputOc);
+    assert!(!app.detection_is_stale());
+    // Its boxes are the library's Input Fusion (OC) boxes on this frame.
+    let det = mlod::refine::load_detector(&assets_models(), Case::InputOc, Voting::Manifest).unwrap();
+    let lib = det.detect(app.frame().unwrap(), &app.session().fuse).unwrap();
+    assert_eq!(view.detections, lib);
+    assert!(counts.true_positives > 0, "{counts:?}");
+    // Another case runs on the drifted cloud again.
+    h.state_mut().session_mut().detection.case = Case::Input;
+    h.state_mut().run_detector();
+    h.run_steps(3);
+    assert!(!h.state().session().oc.show_corrected);
+    assert!(!h.state().fused().unwrap().lidars[1].calibrated);
+}
+
 /// Writes the sessions behind `screenshots/*.png` (run by `screenshots/make.sh`).
 #[test]
 #[ignore]
@@ -728,4 +821,15 @@ fn write_screenshot_sessions() {
     h.state_mut().set_preset(View::Chase);
     h.run_steps(2);
     save(&h, "mlod_i");
+    // Online calibration at α = 0.1, bird's eye, LiDARs in the paper's colours: the drifted
+    // cloud (walls and cars doubled where the LiDARs overlap), then the same view after ICP.
+    let mut h = harness(Some(session_at(0.1, ColorMode::Source)));
+    h.state_mut().set_preset(View::Bev);
+    h.state_mut().focus_camera([12.0, 0.0, 0.0], 30.0);
+    h.run_steps(2);
+    save(&h, "calibration_before");
+    h.get_by_label("calibrate (ICP)").click();
+    h.run_steps(3);
+    assert!(h.state().session().oc.show_corrected);
+    save(&h, "calibration_after");
 }

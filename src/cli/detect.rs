@@ -31,15 +31,21 @@ pub struct DetectorRun {
     /// the models' manifest.json says (`mlod train tune-vote`), `off`: plain NMS, or an IoU.
     #[arg(long, default_value = "manifest")]
     pub vote_iou: Voting,
+    /// (OC) cases: the uncertainty the calibrated LiDARs' points carry into the refiner. `icp`:
+    /// the covariance ICP estimated; `alpha`: the prior Θ(α), as without calibration.
+    #[arg(long, default_value = "icp")]
+    pub oc_prior: mlod::calib::OcPrior,
 }
 
 impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
-        Ok(mlod::refine::load_detector(
+        Ok(mlod::refine::load_detector_oc(
             &self.models_dir(),
             case,
             self.vote_iou,
+            &mlod::calib::IcpConfig::default(),
+            self.oc_prior,
         )?)
     }
 

@@ -3,6 +3,7 @@
 
 pub mod analyze;
 pub mod args;
+pub mod calibrate;
 pub mod data;
 pub mod detect;
 pub mod eval;
@@ -23,6 +24,15 @@ Examples:
   mlod table1 --dataset data/test                        the paper's Table I
 
 Every subcommand has examples under `mlod <subcommand> --help`.";
+
+pub const CALIBRATE_EXAMPLES: &str = "\
+Examples:
+  mlod calibrate --dataset sample_data --alpha 0.1                     the first sample, one drift
+  mlod calibrate --dataset data/test --alpha 0.1 --samples 20 --spread --per-sample
+                                                                       accuracy over 20 samples
+  mlod calibrate --dataset data/test --alpha 0.1 --samples 20 --spread --per-sample --json
+  mlod calibrate --dataset sample_data --alpha 0.1 --dump icp-dump     the clouds, for Open3D
+  mlod eval --dataset data/test --case input-oc --alpha 0.1            detection after calibration";
 
 pub const GUI_EXAMPLES: &str = "\
 Examples:

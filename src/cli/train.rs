@@ -244,6 +244,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
             seed: 0,
             models: Some(models.clone()),
             vote_iou: voting,
+            oc_prior: Default::default(),
         };
         let mut per_case = BTreeMap::new();
         for &case in &cases {

@@ -27,6 +27,7 @@ pub mod gt_sampling;
 pub mod infer;
 pub mod model;
 pub mod net;
+pub mod oc;
 pub mod optim;
 pub mod train;
 pub mod voxel;
@@ -71,6 +72,25 @@ pub enum Case {
     /// MLOD-R: Result Fusion + the refiner.
     #[serde(rename = "mlod-r")]
     MlodR,
+    /// Input Fusion (OC): online calibration (point-to-plane ICP, `crate::calib`) first, then
+    /// Input Fusion on the corrected cloud.
+    #[serde(rename = "input-oc")]
+    InputOc,
+    /// Feature Fusion (OC).
+    #[serde(rename = "feature-oc")]
+    FeatureOc,
+    /// Result Fusion (OC).
+    #[serde(rename = "result-oc")]
+    ResultOc,
+    /// MLOD-I (OC): online calibration, then MLOD-I.
+    #[serde(rename = "mlod-i-oc")]
+    MlodIOc,
+    /// MLOD-F (OC).
+    #[serde(rename = "mlod-f-oc")]
+    MlodFOc,
+    /// MLOD-R (OC).
+    #[serde(rename = "mlod-r-oc")]
+    MlodROc,
 }
 
 impl Case {
@@ -99,12 +119,45 @@ impl Case {
         Case::MlodR,
     ];
 
-    /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case).
+    /// The six online-calibration cases (paper Table II's "(OC)" rows).
+    pub const OC: [Case; 6] = [
+        Case::InputOc,
+        Case::FeatureOc,
+        Case::ResultOc,
+        Case::MlodIOc,
+        Case::MlodFOc,
+        Case::MlodROc,
+    ];
+
+    /// Every case: [`Case::EVERY`] then [`Case::OC`].
+    pub const WITH_OC: [Case; 15] = [
+        Case::Top,
+        Case::Left,
+        Case::Right,
+        Case::Input,
+        Case::Feature,
+        Case::Result,
+        Case::MlodI,
+        Case::MlodF,
+        Case::MlodR,
+        Case::InputOc,
+        Case::FeatureOc,
+        Case::ResultOc,
+        Case::MlodIOc,
+        Case::MlodFOc,
+        Case::MlodROc,
+    ];
+
+    /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
+    /// (OC) variant for an MLOD (OC) case.
     pub fn stage1(self) -> Case {
         match self {
             Case::MlodI => Case::Input,
             Case::MlodF => Case::Feature,
             Case::MlodR => Case::Result,
+            Case::MlodIOc => Case::InputOc,
+            Case::MlodFOc => Case::FeatureOc,
+            Case::MlodROc => Case::ResultOc,
             c => c,
         }
     }
@@ -115,13 +168,39 @@ impl Case {
             Case::Input => Some(Case::MlodI),
             Case::Feature => Some(Case::MlodF),
             Case::Result => Some(Case::MlodR),
+            Case::InputOc => Some(Case::MlodIOc),
+            Case::FeatureOc => Some(Case::MlodFOc),
+            Case::ResultOc => Some(Case::MlodROc),
             _ => None,
         }
     }
 
     /// Whether this case runs the stage-2 refiner.
     pub fn is_mlod(self) -> bool {
-        Case::MLOD.contains(&self)
+        Case::MLOD.contains(&self.without_oc())
+    }
+
+    /// Whether this case calibrates the auxiliary LiDARs online before detecting.
+    pub fn is_oc(self) -> bool {
+        Case::OC.contains(&self)
+    }
+
+    /// The case without online calibration (itself if it has none).
+    pub fn without_oc(self) -> Case {
+        match self {
+            Case::InputOc => Case::Input,
+            Case::FeatureOc => Case::Feature,
+            Case::ResultOc => Case::Result,
+            Case::MlodIOc => Case::MlodI,
+            Case::MlodFOc => Case::MlodF,
+            Case::MlodROc => Case::MlodR,
+            c => c,
+        }
+    }
+
+    /// The (OC) variant of a fusion or MLOD case.
+    pub fn with_oc(self) -> Option<Case> {
+        Case::OC.into_iter().find(|c| c.without_oc() == self)
     }
 
     /// The lowercase name used on the command line and in file names.
@@ -136,6 +215,12 @@ impl Case {
             Case::MlodI => "mlod-i",
             Case::MlodF => "mlod-f",
             Case::MlodR => "mlod-r",
+            Case::InputOc => "input-oc",
+            Case::FeatureOc => "feature-oc",
+            Case::ResultOc => "result-oc",
+            Case::MlodIOc => "mlod-i-oc",
+            Case::MlodFOc => "mlod-f-oc",
+            Case::MlodROc => "mlod-r-oc",
         }
     }
 
@@ -151,6 +236,12 @@ impl Case {
             Case::MlodI => "MLOD-I",
             Case::MlodF => "MLOD-F",
             Case::MlodR => "MLOD-R",
+            Case::InputOc => "Input Fusion (OC)",
+            Case::FeatureOc => "Feature Fusion (OC)",
+            Case::ResultOc => "Result Fusion (OC)",
+            Case::MlodIOc => "MLOD-I (OC)",
+            Case::MlodFOc => "MLOD-F (OC)",
+            Case::MlodROc => "MLOD-R (OC)",
         }
     }
 

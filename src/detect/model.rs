@@ -475,6 +475,12 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
             Some(Some(v))
         }
     };
+    if case.is_oc() {
+        return Err(DetectError::BadParameter(format!(
+            "{} calibrates online first: load it with mlod::refine::load_detector",
+            case.paper_name()
+        )));
+    }
     Ok(match case {
         Case::MlodI | Case::MlodF | Case::MlodR => {
             return Err(DetectError::BadParameter(format!(

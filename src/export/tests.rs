@@ -13,6 +13,7 @@ fn lidar(channel: LidarChannel, range: std::ops::Range<usize>) -> FusedLidar {
         nominal: Pose::identity(),
         noise: ExtrinsicNoise::ZERO,
         applied: Pose::identity(),
+        calibrated: false,
     }
 }
 

@@ -3,6 +3,7 @@
 //! file only holds state, lays out widgets and hands data to the renderer. Running a detector,
 //! drawing its layers and highlighting active points live in [`detection`].
 
+mod calibration;
 mod detection;
 
 use std::collections::BTreeMap;
@@ -71,6 +72,10 @@ pub struct MlodApp {
     /// The refined box whose active points are painted over the colouring.
     highlighted: Option<usize>,
     models_dir: PathBuf,
+    /// Id of the last calibration asked for (a result with another id is dropped).
+    calib_seq: u64,
+    /// An (OC) case asked to detect before a calibration existed: detect once it is back.
+    detect_after_calibration: bool,
 }
 
 impl MlodApp {
@@ -128,6 +133,8 @@ impl MlodApp {
                 .clone()
                 .or_else(|| std::env::var_os("MLOD_MODELS").map(PathBuf::from))
                 .unwrap_or_else(default_models_dir),
+            calib_seq: 0,
+            detect_after_calibration: false,
             session,
         };
         let path = app.session.dataset.clone();
@@ -259,6 +266,12 @@ impl MlodApp {
                     result,
                     millis,
                 } => self.apply_detection(token, generation, case, result, millis, now),
+                JobResult::Calibrate {
+                    id,
+                    token,
+                    result,
+                    millis,
+                } => self.apply_calibration(id, token, result, millis, now),
             }
         }
     }
@@ -290,12 +303,28 @@ impl MlodApp {
 
     /// Re-fuses the frame with the current perturbation and recolours (the α-slider path).
     fn refuse(&mut self, now: f64) {
+        self.refuse_now(now, self.session.detection.auto_run);
+    }
+
+    /// [`Self::refuse`], re-running the detector after it only if `auto_run`. A calibration that
+    /// no longer fits the sample or the drift is dropped first.
+    fn refuse_now(&mut self, now: f64, auto_run: bool) {
         self.needs_fuse = false;
         let Some(frame) = self.loaded.frame.clone() else {
             return;
         };
         let start = Instant::now();
-        match fuse(&frame, &self.session.fuse) {
+        let mut result = fuse(&frame, &self.session.fuse_params());
+        if let Err(e) = &result {
+            if self.drop_stale_calibration(e) {
+                result = fuse(&frame, &self.session.fuse_params());
+            }
+        } else if self.session.oc.calibration.is_some() && !self.calibration_is_current() {
+            // Not shown, but kept: drop it too once the drift or the sample changed.
+            self.session.oc.calibration = None;
+            self.session.oc.show_corrected = false;
+        }
+        match result {
             Ok(cloud) => {
                 self.session.sampled = cloud
                     .lidars
@@ -306,7 +335,7 @@ impl MlodApp {
                 self.loaded.fused = Some(cloud);
                 self.loaded.fuse_generation += 1;
                 self.rebuild_scene();
-                if self.session.detection.auto_run {
+                if auto_run {
                     self.run_detector();
                 }
                 self.loaded.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -500,6 +529,8 @@ impl MlodApp {
                 Action::Refuse => self.mark_fuse(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),
+                Action::Calibrate => self.calibrate(),
+                Action::CancelCalibration => self.cancel_calibration(now),
                 Action::Rematch => self.rematch(),
                 Action::RebuildLines => self.rebuild_lines(),
             }
@@ -514,8 +545,11 @@ impl MlodApp {
         };
         let format = crate::export::Format::from_path(path)
             .ok_or_else(|| format!("{}: give the file a .ply or .pcd extension", path.display()))?;
-        let mut comment =
-            crate::export::source_comment(&self.session.dataset, &frame.sample_token, &self.session.fuse);
+        let mut comment = crate::export::source_comment(
+            &self.session.dataset,
+            &frame.sample_token,
+            &self.session.fuse_params(),
+        );
         if !self.session.fuse.manual.is_empty() {
             comment.push_str(" (plus the window's manual offsets)");
         }

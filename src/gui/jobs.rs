@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 
+use crate::calib::{Calibration, IcpConfig, OcPrior};
 use crate::detect::model::{load_detector, Voting};
 use crate::detect::{Case, Detection, Detector};
 use crate::lyft::{Dataset, Frame, SampleSummary};
@@ -23,7 +24,10 @@ pub enum LoadedDetector {
 
 impl LoadedDetector {
     /// Loads the shipped detector of `case` from a models folder (box voting as its manifest says).
+    /// An (OC) case loads the detector it wraps: the calibration comes with the request's
+    /// fuse parameters.
     fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
+        let case = case.without_oc();
         if case.is_mlod() {
             let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
             Ok(Self::Mlod(Arc::new(m)))
@@ -79,6 +83,13 @@ pub enum JobResult {
         generation: u64,
         case: Case,
         result: Result<DetectOutput, String>,
+        millis: f64,
+    },
+    Calibrate {
+        /// The request's id (a cancelled or superseded one is dropped by the app).
+        id: u64,
+        token: String,
+        result: Result<Calibration, String>,
         millis: f64,
     },
 }
@@ -178,6 +189,21 @@ impl Jobs {
                 token,
                 generation: req.generation,
                 case: req.case,
+                result,
+                millis: start.elapsed().as_secs_f64() * 1e3,
+            }
+        });
+    }
+
+    /// Online calibration (ICP) of the auxiliary LiDARs of `frame`, drifted as `params` says.
+    pub fn calibrate(&mut self, id: u64, frame: Arc<Frame>, params: FuseParams, prior: OcPrior) {
+        self.spawn(move || {
+            let start = std::time::Instant::now();
+            let result = crate::pipeline::calibrate(&frame, &params, &IcpConfig::default(), prior)
+                .map_err(|e| e.to_string());
+            JobResult::Calibrate {
+                id,
+                token: frame.sample_token.clone(),
                 result,
                 millis: start.elapsed().as_secs_f64() * 1e3,
             }

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use eframe::egui;
 use egui::{Color32, RichText, Sense, Stroke};
 
+mod calibration;
 mod detection;
 
 use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
@@ -77,6 +78,9 @@ pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
     }
     if esc {
         p.shell.show_help = false;
+        if p.loaded.calibrating.is_some() {
+            p.act(Action::CancelCalibration);
+        }
     }
     if bev {
         let v = if p.view.camera.projection == Projection::BirdsEye {
@@ -374,6 +378,8 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     if changed {
         p.act(Action::Refuse);
     }
+    ui.add_space(4.0);
+    calibration::calibration(p, ui);
 }
 
 /// Three labelled drag values in a row, each within ±`limit`; true if any changed.

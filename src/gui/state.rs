@@ -53,6 +53,10 @@ pub enum Action {
     /// The colouring changed: recolour without moving points.
     Recolor,
     RunDetector,
+    /// Online calibration (ICP) of the sample on screen, in the background.
+    Calibrate,
+    /// Drop the calibration in flight.
+    CancelCalibration,
     /// The match IoU or the min score changed: match the detection on screen again.
     Rematch,
     /// A layer was switched on or off: rebuild the box lines.
@@ -113,6 +117,10 @@ pub struct Loaded {
     pub detecting: bool,
     /// The refined box clicked in the viewport (index into the refinement on screen).
     pub selected_refined: Option<usize>,
+    /// The id of the calibration in flight.
+    pub calibrating: Option<u64>,
+    /// Wall time of the last calibration (ms).
+    pub calibrate_ms: f64,
 }
 
 impl Loaded {

@@ -25,7 +25,10 @@ pub mod points;
 pub mod proposals;
 pub mod train;
 
-pub use model::{load_detector, load_mlod, redecode, Decoding, Mlod, MlodRun, Refined, Refiner, ScoreRule};
+pub use model::{
+    load_detector, load_detector_oc, load_mlod, redecode, Decoding, Mlod, MlodRun, Refined, Refiner,
+    ScoreRule,
+};
 
 /// Errors of the refiner.
 #[derive(Debug, thiserror::Error)]

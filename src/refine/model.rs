@@ -11,6 +11,8 @@
 //! an optional 3D-IoU NMS follows. A proposal without a single point keeps its box and its stage-1
 //! score (the network has nothing to look at). Proposals of other categories pass through.
 
+use crate::calib::{IcpConfig, OcPrior};
+use crate::detect::oc::OcDetector;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -406,6 +408,21 @@ impl Detector for Mlod {
 /// The shipped detector of any case (stage 1, or MLOD with the folder's refiner), decoding as the
 /// manifest says, with the caller's box voting in stage 1.
 pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn Detector>, DetectError> {
+    load_detector_oc(dir, case, voting, &IcpConfig::default(), OcPrior::default())
+}
+
+/// [`load_detector`] with the online calibration's settings of an (OC) case.
+pub fn load_detector_oc(
+    dir: &Path,
+    case: Case,
+    voting: Voting,
+    icp: &IcpConfig,
+    prior: OcPrior,
+) -> Result<Box<dyn Detector>, DetectError> {
+    if case.is_oc() {
+        let inner = load_detector(dir, case.without_oc(), voting)?;
+        return Ok(Box::new(OcDetector::new(case, inner, *icp, prior)?));
+    }
     if !case.is_mlod() {
         return load_detector_with(dir, case, voting);
     }
@@ -414,7 +431,7 @@ pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn D
 
 /// An MLOD case of a models folder (its stage-1 detector and the folder's refiner).
 pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectError> {
-    if !case.is_mlod() {
+    if !case.is_mlod() || case.is_oc() {
         return Err(DetectError::BadParameter(format!(
             "{} is not an MLOD case",
             case.paper_name()

@@ -134,6 +134,9 @@ pub struct TraceKernel {
     phi: [f32; 6],
     /// P + R̄ Z R̄ᵀ (symmetric, same order): the point-independent part of Ξ.
     c0: [f32; 6],
+    /// C = Cov(ρ, φ) by rows (zero for the block-diagonal Θ of the paper), and its trace
+    /// contribution tr(−(C q^ᵀ + q^ Cᵀ)) = −2 w·q with w = (C₂₁−C₁₂, C₀₂−C₂₀, C₁₀−C₀₁).
+    cross: Option<([[f32; 3]; 3], [f32; 3])>,
 }
 
 impl TraceKernel {
@@ -159,7 +162,38 @@ impl TraceKernel {
             tr_phi: prior.phi.trace() as f32,
             phi: sym6(&prior.phi),
             c0: sym6(&c0),
+            cross: None,
         }
+    }
+
+    /// The kernel for a full 6×6 extrinsic covariance Σ of (ρ, φ) (e.g. what ICP leaves, see
+    /// `crate::calib`), cross terms included, plus the measurement covariance `z`:
+    /// Ξ = Σ_ρρ + q^ Σ_φφ q^ᵀ − Σ_ρφ q^ᵀ − q^ Σ_φρ + R̄ Z R̄ᵀ.
+    pub fn with_covariance(
+        r: &Matrix3<f64>,
+        t: &Vector3<f64>,
+        sigma: &nalgebra::Matrix6<f64>,
+        z: &Matrix3<f64>,
+        lin: Linearization,
+    ) -> Self {
+        let sym = sigma.symmetric_part();
+        let prior = Prior {
+            p: sym.fixed_view::<3, 3>(0, 0).into_owned(),
+            phi: sym.fixed_view::<3, 3>(3, 3).into_owned(),
+            z: *z,
+        };
+        let c = sym.fixed_view::<3, 3>(0, 3).into_owned();
+        let mut k = Self::new(r, t, &prior, lin);
+        let rows: [[f32; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| c[(i, j)] as f32));
+        let w = [
+            (c[(2, 1)] - c[(1, 2)]) as f32,
+            (c[(0, 2)] - c[(2, 0)]) as f32,
+            (c[(1, 0)] - c[(0, 1)]) as f32,
+        ];
+        if c.iter().any(|v| *v != 0.0) {
+            k.cross = Some((rows, w));
+        }
+        k
     }
 
     #[inline(always)]
@@ -179,7 +213,11 @@ impl TraceKernel {
         let f = &self.phi;
         let qphiq =
             f[0] * a * a + f[1] * b * b + f[2] * c * c + 2.0 * (f[3] * a * b + f[4] * a * c + f[5] * b * c);
-        self.base + (a * a + b * b + c * c) * self.tr_phi - qphiq
+        let cross = match &self.cross {
+            None => 0.0,
+            Some((_, w)) => -2.0 * (w[0] * a + w[1] * b + w[2] * c),
+        };
+        self.base + (a * a + b * b + c * c) * self.tr_phi - qphiq + cross
     }
 
     /// The six unique entries of Ξ (xx, yy, zz, xy, xz, yz).
@@ -209,6 +247,14 @@ impl TraceKernel {
         let mut out = self.c0;
         for k in 0..6 {
             out[k] += m[k];
+        }
+        if let Some((cr, _)) = &self.cross {
+            // −(C q^ᵀ + q^ Cᵀ): entry (i, j) is −(C_i·(q^)_j + C_j·(q^)_i).
+            let e = |i: usize, j: usize| -(dot(&cr[i], &rows[j]) + dot(&cr[j], &rows[i]));
+            let add = [e(0, 0), e(1, 1), e(2, 2), e(0, 1), e(0, 2), e(1, 2)];
+            for k in 0..6 {
+                out[k] += add[k];
+            }
         }
         out
     }
@@ -292,6 +338,48 @@ mod tests {
         assert!((per_alpha[(0, 1)] - -1.03).abs() < 0.01, "{per_alpha}");
         assert!((per_alpha[(0, 2)] - -0.99).abs() < 0.01, "{per_alpha}");
         assert!((per_alpha - paper_matrix()).abs().max() > 0.2);
+    }
+
+    #[test]
+    fn full_covariance_kernel_equals_h_sigma_ht() {
+        let (r, t, _) = worked_example();
+        // A positive-definite 6×6 with cross terms between ρ and φ.
+        let a = nalgebra::Matrix6::from_fn(|i, j| {
+            ((i * 7 + j * 3) % 5) as f64 * 0.01 + if i == j { 0.05 } else { 0.0 }
+        });
+        let sigma = a * a.transpose();
+        let z = Matrix3::from_diagonal_element(4e-4);
+        for lin in Linearization::ALL {
+            let k = TraceKernel::with_covariance(&r, &t, &sigma, &z, lin);
+            for p in [Vector3::new(10.0, 10.0, 10.0), Vector3::new(-3.0, 25.0, -1.5)] {
+                let q = lever(&r, &t, &p, lin);
+                let mut h = nalgebra::SMatrix::<f64, 3, 6>::zeros();
+                h.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
+                h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-hat(&q)));
+                let xi = h * sigma * h.transpose() + r * z * r.transpose();
+                let c6 = k.covariance6(p.x as f32, p.y as f32, p.z as f32);
+                let want = [
+                    xi[(0, 0)],
+                    xi[(1, 1)],
+                    xi[(2, 2)],
+                    xi[(0, 1)],
+                    xi[(0, 2)],
+                    xi[(1, 2)],
+                ];
+                for (got, want) in c6.iter().zip(want) {
+                    assert!(
+                        (*got as f64 - want).abs() <= 1e-4 * want.abs().max(1.0),
+                        "{lin}: {c6:?} vs {want:?}"
+                    );
+                }
+                let tr = k.trace(p.x as f32, p.y as f32, p.z as f32) as f64;
+                assert!(
+                    (tr - xi.trace()).abs() <= 1e-4 * xi.trace(),
+                    "{lin}: {tr} vs {}",
+                    xi.trace()
+                );
+            }
+        }
     }
 
     #[test]

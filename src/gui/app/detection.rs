@@ -26,10 +26,28 @@ impl MlodApp {
             return;
         }
         let case = self.session.detection.case;
+        // The cloud on screen is the one the case sees: an (OC) case the corrected cloud (after
+        // calibrating, if there is no calibration yet), any other case the drifted one.
+        if case.is_oc() {
+            if !self.calibration_is_current() {
+                if !self.is_calibrating() {
+                    self.calibrate();
+                }
+                self.detect_after_calibration = true;
+                return;
+            }
+            if !self.session.oc.show_corrected {
+                self.session.oc.show_corrected = true;
+                self.refuse_now(0.0, false);
+            }
+        } else if self.session.oc.show_corrected {
+            self.session.oc.show_corrected = false;
+            self.refuse_now(0.0, false);
+        }
         self.loaded.detecting = true;
         self.jobs.detect(DetectRequest {
             frame,
-            params: self.session.fuse.clone(),
+            params: self.session.fuse_params(),
             generation: self.loaded.fuse_generation,
             case,
             cached: self.detectors.get(&case).cloned(),

@@ -22,7 +22,7 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         egui::ComboBox::new("mlod_detector_case", "case")
             .selected_text(d.case.paper_name())
             .show_ui(ui, |ui| {
-                for c in Case::EVERY {
+                for c in Case::WITH_OC {
                     ui.selectable_value(&mut d.case, c, c.paper_name());
                 }
             });

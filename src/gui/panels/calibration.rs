@@ -1,0 +1,107 @@
+//! The "Online calibration (ICP)" group of the perturbation panel: the calibrate button (Escape
+//! cancels), per auxiliary LiDAR the error against the true extrinsic before → after, the
+//! iterations and the degenerate directions, the corrected/drifted toggle and the prior the
+//! corrected points' tr(Ξ) follows.
+
+use eframe::egui;
+use egui::{Color32, RichText};
+
+use super::Panels;
+use crate::calib::{OcPrior, PoseError};
+use crate::gui::state::{lidar_label, Action};
+
+pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    ui.label(RichText::new("Online calibration (ICP)").strong());
+    let busy = p.loaded.calibrating.is_some();
+    ui.horizontal(|ui| {
+        let label = if busy {
+            "calibrating… (Esc)"
+        } else {
+            "calibrate (ICP)"
+        };
+        if ui
+            .add_enabled(p.loaded.frame.is_some() && !busy, egui::Button::new(label))
+            .on_hover_text(
+                "Re-estimate the drifted auxiliary extrinsics by point-to-plane ICP against LiDAR-Top",
+            )
+            .clicked()
+        {
+            p.act(Action::Calibrate);
+        }
+        if busy && ui.small_button("cancel").clicked() {
+            p.act(Action::CancelCalibration);
+        }
+    });
+    let Some(cal) = p.session.oc.calibration.clone() else {
+        ui.label(RichText::new("not calibrated: the cloud uses the drifted extrinsics").weak());
+        return;
+    };
+    let frame = p.loaded.frame.clone();
+    let timings = p.shell.show_timings;
+    for l in &cal.lidars {
+        ui.horizontal(|ui| {
+            ui.label(lidar_label(l.channel));
+            let truth = frame
+                .as_ref()
+                .and_then(|f| f.lidar(l.channel))
+                .map(|s| s.info.extrinsic);
+            let fmt = |e: PoseError| format!("{:.3}° {:.1} cm", e.rot_deg, e.trans_m * 100.0);
+            match truth {
+                Some(t) => ui.monospace(format!("{} -> {}", fmt(l.error_before(&t)), fmt(l.error(&t)))),
+                None => ui.label("—"),
+            };
+        });
+        ui.horizontal(|ui| {
+            ui.add_space(12.0);
+            let status = if !l.converged {
+                RichText::new(format!("not converged ({} it)", l.iterations))
+                    .color(Color32::from_rgb(230, 120, 60))
+            } else if !l.degenerate.is_empty() {
+                RichText::new(format!("degenerate: {}", l.degenerate_axes().join(", ")))
+                    .color(Color32::from_rgb(230, 180, 60))
+            } else {
+                let ms = if timings {
+                    format!(", {:.0} ms", l.ms)
+                } else {
+                    String::new()
+                };
+                RichText::new(format!(
+                    "converged in {} it, fitness {:.2}{ms}",
+                    l.iterations, l.fitness
+                ))
+                .weak()
+            };
+            ui.label(status).on_hover_text(format!(
+                "RMSE {:.2} cm over {} correspondences; σ: t ({:.2}, {:.2}, {:.2}) cm, \
+                 rot ({:.3}, {:.3}, {:.3})°",
+                l.rmse * 100.0,
+                l.correspondences,
+                l.std()[0] * 100.0,
+                l.std()[1] * 100.0,
+                l.std()[2] * 100.0,
+                l.std()[3].to_degrees(),
+                l.std()[4].to_degrees(),
+                l.std()[5].to_degrees()
+            ));
+        });
+    }
+    ui.label(RichText::new("error against the true extrinsic: drifted -> calibrated").weak());
+    let mut changed = ui
+        .checkbox(&mut p.session.oc.show_corrected, "show corrected cloud")
+        .on_hover_text("Fuse with ICP's extrinsics (on) or the drifted ones (off)")
+        .changed();
+    ui.horizontal(|ui| {
+        ui.label("tr(Ξ) after calibration");
+        changed |= ui
+            .radio_value(&mut p.session.oc.prior, OcPrior::Icp, "ICP covariance")
+            .on_hover_text("What ICP leaves uncertain (the (OC) cases' default)")
+            .changed();
+        changed |= ui
+            .radio_value(&mut p.session.oc.prior, OcPrior::Alpha, "prior Θ(α)")
+            .on_hover_text("The prior, as if ICP had not run")
+            .changed();
+    });
+    if changed {
+        p.act(Action::Refuse);
+    }
+}
