@@ -113,6 +113,18 @@ fn bench_icp(c: &mut Criterion) {
             black_box(align(&source, &start, &target, &prior, &cfg).unwrap())
         })
     });
+    // The part of it built once per frame: the target's downsampling, kd-tree and normals.
+    c.bench_function("icp_target_build_sample_data", |b| {
+        b.iter(|| {
+            black_box(
+                Target::new(
+                    voxel_downsample(&top.x, &top.y, &top.z, cfg.target_voxel, cfg.max_range),
+                    &cfg,
+                )
+                .unwrap(),
+            )
+        })
+    });
 }
 
 criterion_group!(benches, bench, bench_icp);

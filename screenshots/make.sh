@@ -2,7 +2,8 @@
 # Regenerates screenshots/*.png from the real window under Xvfb (software rendering), one per
 # committed session file. Sessions are written by:
 #   cargo test --test gui_app -- --ignored write_screenshot_sessions
-# Needs: xvfb, xauth, imagemagick (import), mesa-vulkan-drivers.
+# Needs: xvfb, xauth, imagemagick (import), mesa-vulkan-drivers; xdotool (optional) moves the
+# pointer out of the way.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release
@@ -13,7 +14,13 @@ for s in screenshots/*.session.json; do
     target/release/mlod gui --session '$s' >/dev/null 2>&1 &
     pid=\$!
     sleep 6
+    command -v xdotool >/dev/null && xdotool mousemove 1275 795 && sleep 1   # no hover tooltip
     import -window root 'screenshots/$name.png'
     kill \$pid"
   echo "wrote screenshots/$name.png"
 done
+# The README's before/after of online calibration, side by side.
+# The viewports only (the panels cropped), a grey bar between them.
+convert \( screenshots/calibration_before.png -crop 680x750+270+25 +repage \) \( -size 6x750 xc:'#9aa0a6' \) \
+  \( screenshots/calibration_after.png -crop 680x750+270+25 +repage \) +append screenshots/calibration.png
+echo "wrote screenshots/calibration.png"

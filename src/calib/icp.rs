@@ -88,7 +88,7 @@ impl Target {
             .map(|p| {
                 let nn = tree.nearest_n::<SquaredEuclidean>(p, k);
                 let neighbours: Vec<[f32; 3]> = nn.iter().map(|n| points[n.item as usize]).collect();
-                plane_normal(&neighbours, cfg.max_curvature).unwrap_or([f32::NAN; 3])
+                plane_normal(&neighbours, cfg.max_curvature, cfg.min_spread).unwrap_or([f32::NAN; 3])
             })
             .collect();
         Ok(Self {
@@ -123,34 +123,57 @@ fn check_cloud(cloud: &'static str, points: &[[f32; 3]]) -> Result<(), CalibErro
     Ok(())
 }
 
-/// The unit normal of the least-squares plane through `pts`, if they are planar enough.
-fn plane_normal(pts: &[[f32; 3]], max_curvature: f32) -> Option<[f32; 3]> {
+/// The unit normal of the least-squares plane through `pts`, if they are planar enough: the
+/// surface variation λ₀/(λ₀+λ₁+λ₂) at most `max_curvature`, and a plane rather than a line,
+/// λ₁ ≥ `min_spread`·λ₂ (a single scan ring far away is a line, whose normal is any direction
+/// across it).
+fn plane_normal(pts: &[[f32; 3]], max_curvature: f32, min_spread: f32) -> Option<[f32; 3]> {
     if pts.len() < 3 {
         return None;
     }
     let n = pts.len() as f64;
-    let mut mean = Vector3::zeros();
+    let mut mean = [0.0f64; 3];
     for p in pts {
-        mean += Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        for k in 0..3 {
+            mean[k] += p[k] as f64;
+        }
     }
-    mean /= n;
-    let mut c = Matrix3::zeros();
+    let mean = mean.map(|m| m / n);
+    let mut c = [[0.0f64; 3]; 3];
     for p in pts {
-        let d = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - mean;
-        c += d * d.transpose();
+        let d = [
+            p[0] as f64 - mean[0],
+            p[1] as f64 - mean[1],
+            p[2] as f64 - mean[2],
+        ];
+        for i in 0..3 {
+            for j in i..3 {
+                c[i][j] += d[i] * d[j];
+            }
+        }
     }
-    let eig = SymmetricEigen::new(c);
-    let (imin, lmin) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold((0, f64::INFINITY), |a, (i, &l)| if l < a.1 { (i, l) } else { a });
-    let total = eig.eigenvalues.sum();
-    if total.is_nan() || total <= 0.0 || lmin.max(0.0) / total > max_curvature as f64 {
+    c[1][0] = c[0][1];
+    c[2][0] = c[0][2];
+    c[2][1] = c[1][2];
+    // nalgebra's iterative solver (a closed-form solver was no faster where it matters: the
+    // time goes into the neighbour queries).
+    let eig = SymmetricEigen::new(Matrix3::from_fn(|i, j| c[i][j]));
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let [l0, l1, l2] = order.map(|i| eig.eigenvalues[i]);
+    let total = l0 + l1 + l2;
+    if !(total.is_finite() && total > 0.0)
+        || l0.max(0.0) / total > max_curvature as f64
+        || l1 < min_spread as f64 * l2
+    {
         return None;
     }
-    let v = eig.eigenvectors.column(imin);
-    Some([v[0] as f32, v[1] as f32, v[2] as f32])
+    let v = eig.eigenvectors.column(order[0]);
+    let len = v.norm();
+    if !(len.is_finite() && len > 0.0) {
+        return None;
+    }
+    Some([(v[0] / len) as f32, (v[1] / len) as f32, (v[2] / len) as f32])
 }
 
 /// Sums of one pass over the correspondences.
@@ -407,23 +430,26 @@ pub fn align(
     let sigma2 = cfg.covariance_scale * eq.wrr / (eq.w - 6.0).max(1.0);
     // Scaled prior S⁻¹ Θ S⁻¹ for the degenerate directions.
     let prior_scaled = Matrix6::from_fn(|i, j| prior[(i, j)] / (sp.s[i] * sp.s[j]));
+    // Constrained directions: σ²/λ along each eigenvector. Degenerate ones keep their start value,
+    // so the prior restricted to their subspace (basis-free: P_d Θ̃ P_d).
     let mut cov_scaled = Matrix6::zeros();
+    let mut proj = Matrix6::zeros();
     let mut degenerate = Vec::new();
     for i in 0..6 {
         let v = sp.vectors.column(i).into_owned();
-        let var = if sp.degenerate[i] {
+        if sp.degenerate[i] {
             let axis = v.iamax();
             degenerate.push(Degenerate {
                 axis: DIRECTION_NAMES[axis].to_string(),
                 eigenvalue: sp.per_weight[i],
                 vector: std::array::from_fn(|k| v[k]),
             });
-            v.dot(&(prior_scaled * v))
+            proj += v * v.transpose();
         } else {
-            sigma2 / sp.values[i]
-        };
-        cov_scaled += v * v.transpose() * var;
+            cov_scaled += v * v.transpose() * (sigma2 / sp.values[i]);
+        }
     }
+    cov_scaled += proj * prior_scaled * proj;
     let covariance = Matrix6::from_fn(|i, j| cov_scaled[(i, j)] * sp.s[i] * sp.s[j]);
     let mut eigenvalues: [f64; 6] = std::array::from_fn(|i| sp.per_weight[i]);
     eigenvalues.sort_by(f64::total_cmp);

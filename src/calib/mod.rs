@@ -81,6 +81,9 @@ pub struct IcpConfig {
     /// A target point whose neighbourhood's surface variation λ₀/(λ₀+λ₁+λ₂) is above this has no
     /// normal (an edge or clutter, not a plane) and takes no correspondence.
     pub max_curvature: f32,
+    /// … and one whose neighbourhood is a line rather than a plane, λ₁ < `min_spread`·λ₂ (0: no
+    /// such check).
+    pub min_spread: f32,
     /// Correspondence distance of the first iteration (m) …
     pub max_distance: f64,
     /// … multiplied by `shrink` every iteration down to `min_distance` (m).
@@ -108,25 +111,48 @@ impl Default for IcpConfig {
     fn default() -> Self {
         Self {
             source_voxel: 0.3,
-            target_voxel: 0.2,
+            target_voxel: 0.3,
             max_range: 60.0,
             normal_k: 10,
             max_curvature: 0.05,
+            min_spread: 0.0,
             max_distance: 1.5,
             min_distance: 0.25,
             shrink: 0.7,
             huber: 0.05,
             max_iterations: 60,
-            tolerance_translation: 1e-5,
-            tolerance_rotation: 1e-6,
+            tolerance_translation: 1e-4,
+            tolerance_rotation: 1e-5,
             degeneracy: 1e-3,
             min_correspondences: 100,
-            covariance_scale: 4.4,
+            covariance_scale: 3.7,
         }
     }
 }
 
 impl IcpConfig {
+    /// The defaults with `key=value` overrides (the field names above), e.g. from `--icp
+    /// source_voxel=0.4`; unknown keys and bad values are errors naming them.
+    pub fn with_overrides(overrides: &[String]) -> Result<Self, CalibError> {
+        let mut v =
+            serde_json::to_value(Self::default()).map_err(|e| CalibError::BadParameter(e.to_string()))?;
+        for o in overrides {
+            let (key, value) = o
+                .split_once('=')
+                .ok_or_else(|| CalibError::BadParameter(format!("'{o}': expected key=value")))?;
+            let slot = v
+                .get_mut(key.trim())
+                .ok_or_else(|| CalibError::BadParameter(format!("unknown ICP setting '{}'", key.trim())))?;
+            *slot = serde_json::from_str(value.trim()).map_err(|_| {
+                CalibError::BadParameter(format!("'{o}': '{}' is not a number", value.trim()))
+            })?;
+        }
+        let cfg: Self =
+            serde_json::from_value(v).map_err(|e| CalibError::BadParameter(format!("{overrides:?}: {e}")))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
     /// Refuses settings that cannot work (non-finite, non-positive, a shrink outside (0, 1]).
     pub fn validate(&self) -> Result<(), CalibError> {
         let positive = [
@@ -148,6 +174,12 @@ impl IcpConfig {
                     "{name} must be a finite number > 0, got {v}"
                 )));
             }
+        }
+        if !(self.min_spread >= 0.0 && self.min_spread <= 1.0) {
+            return Err(CalibError::BadParameter(format!(
+                "min_spread must be in [0, 1], got {}",
+                self.min_spread
+            )));
         }
         if !(self.shrink > 0.0 && self.shrink <= 1.0) {
             return Err(CalibError::BadParameter(format!(

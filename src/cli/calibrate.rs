@@ -49,6 +49,10 @@ pub struct CalibrateArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Override an ICP setting, e.g. `--icp source_voxel=0.4 --icp max_range=40` (the fields of
+    /// `mlod::calib::IcpConfig`; defaults in docs/calibration.md).
+    #[arg(long = "icp", value_name = "KEY=VALUE")]
+    pub icp: Vec<String>,
     /// Also write, per sample, the downsampled clouds and the start/true extrinsics ICP worked
     /// on (`<token>.target.xyz`, `<token>.<channel>.source.xyz`, `<token>.json`), e.g. for the
     /// Open3D reference (`tests/open3d/icp_reference.py`).
@@ -68,6 +72,9 @@ struct Run {
     rmse: f64,
     iterations: usize,
     correspondences: usize,
+    /// Eigenvalues of the normal matrix per unit weight, ascending (degenerate below the
+    /// threshold `IcpConfig::degeneracy`).
+    eigenvalues: [f64; 6],
     /// Estimated (ρ, φ) covariance, m and rad, 6×6.
     covariance: [[f64; 6]; 6],
     /// Standard deviations from it: tx, ty, tz (m), roll, pitch, yaw (deg).
@@ -154,7 +161,7 @@ fn tokens(dataset: &Dataset, args: &CalibrateArgs) -> Result<Vec<String>> {
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let dataset = Dataset::open(&args.dataset)?;
     let tokens = tokens(&dataset, &args)?;
-    let config = IcpConfig::default();
+    let config = IcpConfig::with_overrides(&args.icp)?;
     let mut runs = Vec::new();
     for (i, token) in tokens.iter().enumerate() {
         let frame = dataset.frame(token).with_context(|| format!("sample {token}"))?;
@@ -189,6 +196,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
                 rmse: l.rmse,
                 iterations: l.iterations,
                 correspondences: l.correspondences,
+                eigenvalues: l.eigenvalues,
                 covariance: l.covariance,
                 std: [
                     s[0],

@@ -94,6 +94,16 @@ def main() -> int:
         print(f"no *.json in {args.dir}: run `mlod calibrate ... --dump {args.dir}` first", file=sys.stderr)
         return 1
     med = lambda key, i: statistics.median(r[key][i] for r in rows)
+
+    def q(key: str, i: int, p: float) -> float:
+        v = sorted(r[key][i] for r in rows)
+        return v[min(len(v) - 1, round(p * (len(v) - 1)))]
+
+    for key in ("before", "mlod", "open3d"):
+        print(
+            f"{key:<7} rotation median {q(key, 0, 0.5):.4f} p90 {q(key, 0, 0.9):.4f} worst {q(key, 0, 1.0):.4f} deg;"
+            f" translation median {q(key, 1, 0.5)*100:.3f} p90 {q(key, 1, 0.9)*100:.3f} worst {q(key, 1, 1.0)*100:.3f} cm"
+        )
     print(
         f"\n{len(rows)} runs, medians: before {med('before', 0):.3f} deg {med('before', 1)*100:.2f} cm"
         f" | mlod {med('mlod', 0):.4f} deg {med('mlod', 1)*100:.3f} cm {statistics.median(r['mlod_ms'] for r in rows):.1f} ms"
