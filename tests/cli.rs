@@ -800,3 +800,109 @@ fn mlod_cases_without_or_with_a_corrupt_refiner_fail_naming_the_file() {
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("MLOD case"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn calibrate_reports_errors_before_and_after_and_oc_cases_run() {
+    let data = format!("{}/sample_data", env!("CARGO_MANIFEST_DIR"));
+    let v = json(&[
+        "calibrate",
+        "--dataset",
+        &data,
+        "--alpha",
+        "0.1",
+        "--samples",
+        "2",
+        "--json",
+    ]);
+    let runs = v["runs"].as_array().expect("runs");
+    assert_eq!(runs.len(), 4, "two samples, two auxiliary LiDARs");
+    for r in runs {
+        for key in [
+            "sample_token",
+            "channel",
+            "converged",
+            "degenerate",
+            "fitness",
+            "rmse",
+            "iterations",
+            "covariance",
+            "ms",
+        ] {
+            assert!(!r[key].is_null(), "{key} missing: {r}");
+        }
+        let before = r["error_before"]["rot_deg"].as_f64().unwrap();
+        let after = r["error_after"]["rot_deg"].as_f64().unwrap();
+        assert!(after < 0.05 && after < before / 10.0, "{before} -> {after}");
+        assert!(r["error_after"]["trans_m"].as_f64().unwrap() < 0.01);
+        assert_eq!(r["covariance"].as_array().unwrap().len(), 6);
+    }
+    assert_eq!(v["summary"]["runs"], 4);
+    assert!(v["summary"]["rot_deg_after"]["median"].as_f64().unwrap() < 0.05);
+    // The same drift as `mlod fuse`: the start error is the one of fuse's applied extrinsic.
+    let single = json(&["calibrate", "--dataset", &data, "--alpha", "0.1", "--json"]);
+    assert_eq!(single["runs"][0]["error_before"], runs[0]["error_before"]);
+    // Bad settings and input fail cleanly, naming what is wrong.
+    for (args, needle) in [
+        (vec!["--icp", "voxel=1"], "unknown ICP setting 'voxel'"),
+        (vec!["--icp", "shrink=2"], "shrink"),
+        (vec!["--alpha", "-1"], "alpha"),
+        (vec!["--samples", "0"], "--samples"),
+        (vec!["--sample", "nope"], "nope"),
+    ] {
+        let mut a = vec!["calibrate", "--dataset", data.as_str()];
+        a.extend(args.iter());
+        let out = mlod(&a);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(needle), "{a:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    // `fuse --oc` gives the corrected cloud's numbers (what the window shows after calibrating):
+    // far fewer uncertain points with ICP's covariance, the same as without OC with the prior's.
+    let drifted_fuse = json(&["fuse", "--dataset", &data, "--alpha", "0.1", "--json"]);
+    let oc_fuse = json(&["fuse", "--dataset", &data, "--alpha", "0.1", "--oc", "--json"]);
+    let oc_alpha = json(&[
+        "fuse",
+        "--dataset",
+        &data,
+        "--alpha",
+        "0.1",
+        "--oc",
+        "--oc-prior",
+        "alpha",
+        "--json",
+    ]);
+    assert_eq!(oc_fuse["lidars"][1]["calibrated"], true);
+    assert_eq!(drifted_fuse["lidars"][1]["calibrated"], false);
+    let frac = |v: &serde_json::Value| v["uncertain_fraction"].as_f64().unwrap();
+    assert!(
+        frac(&oc_fuse) < 0.2 * frac(&drifted_fuse),
+        "{} vs {}",
+        frac(&oc_fuse),
+        frac(&drifted_fuse)
+    );
+    assert!((frac(&oc_alpha) - frac(&drifted_fuse)).abs() < 0.02);
+    // An (OC) case runs from detect: ICP first, then Input Fusion on the corrected cloud.
+    let oc = json(&[
+        "detect",
+        "--dataset",
+        &data,
+        "--case",
+        "input-oc",
+        "--alpha",
+        "0.1",
+        "--json",
+    ]);
+    let drifted = json(&[
+        "detect",
+        "--dataset",
+        &data,
+        "--case",
+        "input",
+        "--alpha",
+        "0.1",
+        "--json",
+    ]);
+    let clean = json(&["detect", "--dataset", &data, "--case", "input", "--json"]);
+    assert_ne!(oc, drifted, "calibration changed nothing");
+    assert!(oc.to_string().len() > 10 && clean.to_string().len() > 10);
+}

@@ -37,7 +37,7 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub validation: bool,
     /// α of the injected perturbation (as `mlod fuse --alpha`).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha)]
+    #[arg(long, default_value_t = 0.0, value_parser = parse_alpha, allow_hyphen_values = true)]
     pub alpha: f64,
     /// Seed of the perturbation draw (as `mlod fuse --seed`).
     #[arg(long, default_value_t = 0)]

@@ -63,6 +63,13 @@ pub struct FuseArgs {
     /// Number of log-spaced tr(Ξ) histogram bins between 1e-3 and 1 m².
     #[arg(long, default_value_t = 64)]
     bins: usize,
+    /// Calibrate online first (point-to-plane ICP, as the window's "calibrate (ICP)") and fuse
+    /// with the corrected extrinsics: the numbers of the corrected cloud.
+    #[arg(long)]
+    oc: bool,
+    /// With --oc: the uncertainty of the calibrated points (icp: ICP's covariance; alpha: Θ(α)).
+    #[arg(long, default_value = "icp", requires = "oc")]
+    oc_prior: mlod::calib::OcPrior,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -187,6 +194,12 @@ pub fn fuse_cmd(args: FuseArgs) -> Result<()> {
         linearization: args.linearization,
         ..Default::default()
     };
+    let mut params = params;
+    if args.oc {
+        let cal =
+            mlod::pipeline::calibrate(&frame, &params, &mlod::calib::IcpConfig::default(), args.oc_prior)?;
+        params.calibration = Some(cal);
+    }
     let cloud = fuse(&frame, &params)?;
     let range = ColorParams::default().range;
     let hist = histogram(
@@ -204,6 +217,7 @@ pub fn fuse_cmd(args: FuseArgs) -> Result<()> {
             serde_json::json!({
                 "channel": l.channel.as_str(),
                 "num_points": l.range.len(),
+                "calibrated": l.calibrated,
                 "rho_m": l.noise.rho,
                 "phi_rad": l.noise.phi,
                 "applied_extrinsic": {
