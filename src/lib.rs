@@ -17,6 +17,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod refine;
 pub mod session;
+pub mod sweep;
 pub mod synth;
 pub mod uncertainty;
 

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cli;
 
-use cli::{analyze, calibrate, data, detect, eval, export, table1, train, uncertainty, window};
+use cli::{analyze, calibrate, data, detect, eval, export, sweep, table1, train, uncertainty, window};
 
 #[derive(Parser)]
 #[command(
@@ -70,6 +70,10 @@ enum Command {
     /// easy/moderate/hard at IoU 0.7 and 0.5, as a Markdown table (and JSON with --out).
     #[command(after_help = cli::TABLE1_EXAMPLES)]
     Table1(table1::Table1Args),
+    /// The paper's Table II: cases × α × perturbation trials, car AP_3D@0.7 mean ± std, resumable
+    /// and shardable (`mlod sweep merge` unites shards).
+    #[command(after_help = cli::SWEEP_EXAMPLES)]
+    Sweep(sweep::SweepArgs),
     /// Analyses of the refiner: its active points (§V-C, Fig. 5).
     #[command(subcommand, after_help = cli::ANALYZE_EXAMPLES)]
     Analyze(analyze::AnalyzeCommand),
@@ -115,6 +119,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Detect(a)) => detect::detect(a),
         Some(Command::Eval(a)) => eval::eval_cmd(a),
         Some(Command::Table1(a)) => table1::table1_cmd(a),
+        Some(Command::Sweep(a)) => sweep::run(a),
         Some(Command::Analyze(c)) => analyze::analyze(c),
     }
 }

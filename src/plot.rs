@@ -205,3 +205,98 @@ pub fn histogram_png(
     }
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }
+
+/// A labelled curve: points (x, mean, std).
+pub type Curve = (String, Vec<(f64, f64, f64)>);
+
+/// One curve per series (label, points (x, mean, std)) with error bars of ±std, for the sweep's
+/// AP-against-α plot; a palette of ten colours, the legend outside the curves.
+pub fn curves_with_error_bars_png(
+    series: &[Curve],
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    path: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    let pts = series.iter().flat_map(|(_, p)| p.iter());
+    let (mut x0, mut x1, mut y0, mut y1) =
+        (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for &(x, m, s) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(m - s);
+        y1 = y1.max(m + s);
+    }
+    if !x0.is_finite() || !y0.is_finite() {
+        return Err(PlotError::Empty("no points to plot".into()));
+    }
+    let pad = ((x1 - x0) * 0.05).max(0.002);
+    let (y0, y1) = ((y0 - 2.0).max(0.0).floor(), (y1 + 2.0).min(100.0).ceil());
+    let (w, h) = (900u32, 560u32);
+    let palette = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+        RGBColor(188, 189, 34),
+        RGBColor(23, 190, 207),
+    ];
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(56)
+            .build_cartesian_2d((x0 - pad)..(x1 + pad), y0..y1)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style(("sans-serif", 15))
+            .axis_desc_style(("sans-serif", 17))
+            .draw()
+            .map_err(draw_err)?;
+        for (k, (label, p)) in series.iter().enumerate() {
+            let color = palette[k % palette.len()];
+            let line: Vec<(f64, f64)> = p.iter().map(|&(x, m, _)| (x, m)).collect();
+            chart
+                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
+                .map_err(draw_err)?
+                .label(label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+            // Error bars: a vertical segment of ±std with short caps.
+            let cap = pad * 0.25;
+            chart
+                .draw_series(p.iter().flat_map(|&(x, m, s)| {
+                    [
+                        PathElement::new(vec![(x, m - s), (x, m + s)], color.stroke_width(2)),
+                        PathElement::new(vec![(x - cap, m - s), (x + cap, m - s)], color.stroke_width(2)),
+                        PathElement::new(vec![(x - cap, m + s), (x + cap, m + s)], color.stroke_width(2)),
+                    ]
+                }))
+                .map_err(draw_err)?;
+            chart
+                .draw_series(line.into_iter().map(|q| Circle::new(q, 3, color.filled())))
+                .map_err(draw_err)?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .label_font(("sans-serif", 15))
+            .draw()
+            .map_err(draw_err)?;
+        root.present().map_err(draw_err)?;
+    }
+    write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
+}

@@ -9,6 +9,7 @@ pub mod detect;
 pub mod eval;
 pub mod export;
 pub mod refine;
+pub mod sweep;
 pub mod table1;
 pub mod train;
 pub mod uncertainty;
@@ -33,6 +34,16 @@ Examples:
   mlod calibrate --dataset data/test --alpha 0.1 --samples 20 --spread --per-sample --json
   mlod calibrate --dataset sample_data --alpha 0.1 --dump icp-dump     the clouds, for Open3D
   mlod eval --dataset data/test --case input-oc --alpha 0.1            detection after calibration";
+
+pub const SWEEP_EXAMPLES: &str = "\
+Examples:
+  mlod sweep --dataset data/test --samples 300 --trials 10 --out sweep-t2 \\
+      --cases top,input,feature,result,mlod-i,mlod-f,mlod-r,input-oc,feature-oc,result-oc,mlod-i-oc,mlod-f-oc,mlod-r-oc
+                                                   Table II (rerun the same command to resume)
+  mlod sweep --dataset data/test --samples 20 --trials 2 --cases top,input,mlod-i --alphas 0,0.1 --out /tmp/quick
+  mlod sweep --dataset data/test --samples 300 --trials 10 --out s0 --shard 0/2     one machine
+  mlod sweep --dataset data/test --samples 300 --trials 10 --out s1 --shard 1/2     another
+  mlod sweep merge --out sweep-t2 s0 s1            the same files as one run";
 
 pub const GUI_EXAMPLES: &str = "\
 Examples:

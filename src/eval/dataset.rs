@@ -226,6 +226,8 @@ pub struct EvalOptions {
     /// Only the validation scenes of a training dataset (every 10th scene, the split that
     /// training holds out: [`crate::detect::train::split`]), for tuning without the test split.
     pub validation_only: bool,
+    /// Only these samples, in this order (a sweep's spread subset); before `samples`.
+    pub only: Option<Vec<String>>,
 }
 
 /// How many predictions were read, used and rejected.
@@ -352,7 +354,9 @@ fn to_base(b: &LyftBox, global_to_base: &Pose) -> Box3d {
 }
 
 fn evaluated_tokens(dataset: &Dataset, opts: &EvalOptions) -> Vec<String> {
-    let mut all: Vec<String> = if opts.validation_only {
+    let mut all: Vec<String> = if let Some(only) = &opts.only {
+        only.clone()
+    } else if opts.validation_only {
         crate::lyft::train_validation_split(dataset).1
     } else {
         dataset.sample_tokens().iter().map(|s| (*s).to_owned()).collect()
