@@ -52,6 +52,10 @@ pub struct SweepConfig {
     pub oc_prior: OcPrior,
     /// The evaluated samples, in dataset order.
     pub samples: Vec<String>,
+    /// A mis-specified prior: Ξ (and so the refiner's tr(Ξ)) computed with this α whatever α
+    /// perturbed the points (the paper's supplementary "fixed α" analysis). `None`: the true α.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub assumed_alpha: Option<f64>,
 }
 
 /// One unit of work.
@@ -114,7 +118,12 @@ impl SweepConfig {
         if self.cases.is_empty() || self.alphas.is_empty() || self.samples.is_empty() || self.trials == 0 {
             return bad("a sweep needs at least one case, α, sample and trial".into());
         }
-        if let Some(a) = self.alphas.iter().find(|a| !(a.is_finite() && **a >= 0.0)) {
+        if let Some(a) = self
+            .alphas
+            .iter()
+            .chain(&self.assumed_alpha)
+            .find(|a| !(a.is_finite() && **a >= 0.0))
+        {
             return bad(format!("α must be finite and ≥ 0, got {a}"));
         }
         for (i, c) in self.cases.iter().enumerate() {
@@ -148,6 +157,15 @@ impl SweepConfig {
             }
         }
         g
+    }
+
+    /// The fuse parameters of sample `j` in trial `trial` at `alpha`.
+    pub fn fuse_params(&self, alpha: f64, trial: usize, j: usize) -> Result<FuseParams, SweepError> {
+        Ok(FuseParams {
+            perturbation: self.perturbation(alpha, trial, j)?,
+            prior_alpha: self.assumed_alpha,
+            ..Default::default()
+        })
     }
 
     /// The perturbation of sample `j` in trial `k` at `alpha`.
@@ -379,10 +397,7 @@ pub fn run(
             .par_iter()
             .enumerate()
             .map(|(j, token)| {
-                let params = FuseParams {
-                    perturbation: cfg.perturbation(alpha, trial, j)?,
-                    ..Default::default()
-                };
+                let params = cfg.fuse_params(alpha, trial, j)?;
                 let d = detect_sample(dataset, token, &params, &cases, det, cfg.oc_prior)?;
                 let n = done_samples.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress(n, total_samples);

@@ -43,6 +43,10 @@ pub struct SweepArgs {
     /// (OC) cases: the uncertainty of the calibrated points (as `mlod eval --oc-prior`).
     #[arg(long, default_value = "icp")]
     pub oc_prior: OcPrior,
+    /// A mis-specified prior: compute Ξ with this α whatever α perturbed the points (e.g. the
+    /// true 0.1 assumed 0.02).
+    #[arg(long)]
+    pub assumed_alpha: Option<f64>,
     /// Models folder with manifest.json (default: assets/models).
     #[arg(long)]
     pub models: Option<PathBuf>,
@@ -89,6 +93,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         draw: args.draw,
         oc_prior: args.oc_prior,
         samples: sweep::spread_samples(&all, args.samples),
+        assumed_alpha: args.assumed_alpha,
     };
     cfg.validate()?;
     let models = args.models.clone().unwrap_or_else(default_models_dir);

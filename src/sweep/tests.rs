@@ -19,6 +19,7 @@ fn config() -> SweepConfig {
         draw: Draw::OneCar,
         oc_prior: OcPrior::Icp,
         samples: spread_samples(&all, Some(2)),
+        assumed_alpha: None,
     }
 }
 
@@ -184,4 +185,35 @@ fn a_cell_is_what_eval_gives_for_that_case_alpha_and_seed() {
     assert_eq!(cell.moderate, crate::eval::kitti::car_moderate_07(&report.kitti));
     // LiDAR-Top ran once per α.
     assert_eq!(rows.iter().filter(|r| r.case == Case::Top).count(), 1);
+}
+
+#[test]
+fn an_assumed_alpha_reaches_the_prior_and_leaves_old_configurations_readable() {
+    let cfg = config();
+    let json = serde_json::to_value(&cfg).unwrap();
+    assert!(
+        json.get("assumed_alpha").is_none(),
+        "a sweep without it keeps its old config.json"
+    );
+    assert_eq!(cfg.fuse_params(0.1, 1, 0).unwrap().effective_prior_alpha(), 0.1);
+    let mis = SweepConfig {
+        assumed_alpha: Some(0.02),
+        ..config()
+    };
+    let p = mis.fuse_params(0.1, 1, 0).unwrap();
+    assert_eq!((p.perturbation.alpha, p.effective_prior_alpha()), (0.1, 0.02));
+    assert_ne!(serde_json::to_value(&mis).unwrap(), json);
+    let per_sample = SweepConfig {
+        draw: Draw::PerSample,
+        ..config()
+    };
+    let seeds: Vec<u64> = (0..3)
+        .map(|j| per_sample.perturbation(0.1, 1, j).unwrap().seed)
+        .collect();
+    assert!(seeds[0] != seeds[1] && seeds[1] != seeds[2]);
+    assert_eq!(
+        config().perturbation(0.1, 1, 7).unwrap().seed,
+        4,
+        "one car: seed S + k"
+    );
 }
