@@ -8,7 +8,7 @@
 //! sample. Within a group every sample is loaded and fused once, calibrated once when an (OC) case
 //! is asked for, stage 1 runs once per fusion scheme and cloud and its proposals are refined for
 //! the MLOD variant; samples run in parallel (rayon) and are evaluated together, in sample order.
-//! LiDAR-Top sees no perturbation: it has one trial per α. Each finished unit is written at once,
+//! LiDAR-Top sees no perturbation, and at α = 0 every draw is zero: one trial each. Each finished unit is written at once,
 //! atomically, as `units/<case>_a<α>_t<trial>.json`: a killed sweep resumes where it stopped; a
 //! folder holding another configuration is refused, naming the setting that differs. `--shard
 //! i/n` runs every n-th group; [`merge`] unites shard folders into one.
@@ -56,6 +56,9 @@ pub struct SweepConfig {
     /// perturbed the points (the paper's supplementary "fixed α" analysis). `None`: the true α.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub assumed_alpha: Option<f64>,
+    /// `input-drop`'s threshold on tr(Ξ) (m²), when that case is swept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drop_trace: Option<f32>,
 }
 
 /// One unit of work.
@@ -139,7 +142,7 @@ impl SweepConfig {
         let mut out = Vec::new();
         for &case in &self.cases {
             for &alpha in &self.alphas {
-                let trials = if case == Case::Top { 1 } else { self.trials };
+                let trials = self.trials_at(case, alpha);
                 for trial in 0..trials {
                     out.push(Unit { case, alpha, trial });
                 }
@@ -148,11 +151,22 @@ impl SweepConfig {
         out
     }
 
+    /// Trials of a case at α: one for LiDAR-Top (it does not see the perturbation) and at α = 0
+    /// (every draw is zero), `trials` otherwise.
+    pub fn trials_at(&self, case: Case, alpha: f64) -> usize {
+        if case == Case::Top || alpha == 0.0 {
+            1
+        } else {
+            self.trials
+        }
+    }
+
     /// The groups (α, trial) in a fixed order: what `--shard` divides.
     fn groups(&self) -> Vec<(f64, usize)> {
         let mut g = Vec::new();
         for &alpha in &self.alphas {
-            for trial in 0..self.trials {
+            let trials = if alpha == 0.0 { 1 } else { self.trials };
+            for trial in 0..trials {
                 g.push((alpha, trial));
             }
         }
@@ -221,20 +235,25 @@ fn claim(dir: &Path, cfg: &SweepConfig) -> Result<(), SweepError> {
     let path = dir.join(CONFIG_FILE);
     match std::fs::read(&path) {
         Ok(bytes) => {
-            let theirs: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| SweepError::File {
+            let theirs: SweepConfig = serde_json::from_slice(&bytes).map_err(|e| SweepError::File {
                 path: path.clone(),
                 what: format!("not a sweep configuration: {e}"),
             })?;
-            let ours = serde_json::to_value(cfg).map_err(|e| SweepError::BadParameter(e.to_string()))?;
-            if theirs != ours {
-                let setting = ours
-                    .as_object()
-                    .and_then(|o| {
-                        o.iter()
-                            .find(|(k, v)| theirs.get(k.as_str()) != Some(v))
-                            .map(|(k, _)| k.clone())
-                    })
-                    .unwrap_or_else(|| "configuration".into());
+            if theirs != *cfg {
+                // Both through the same serialisation, so floats compare like for like.
+                let (a, b) = (serde_json::to_value(&theirs), serde_json::to_value(cfg));
+                let setting = match (a, b) {
+                    (Ok(a), Ok(serde_json::Value::Object(b))) => b
+                        .iter()
+                        .find(|(k, v)| a.get(k.as_str()) != Some(v))
+                        .map(|(k, _)| k.clone())
+                        .or_else(|| {
+                            a.as_object()
+                                .and_then(|a| a.keys().find(|k| !b.contains_key(*k)).cloned())
+                        }),
+                    _ => None,
+                }
+                .unwrap_or_else(|| "configuration".into());
                 return Err(SweepError::OtherConfig {
                     dir: dir.to_path_buf(),
                     setting,
@@ -259,6 +278,14 @@ fn read_unit(dir: &Path, u: &Unit) -> Option<UnitResult> {
     serde_json::from_slice(&bytes).ok()
 }
 
+/// The stage-1 network a case runs (Input Fusion for `input-drop`).
+fn base_case(c: Case) -> Case {
+    match c {
+        Case::InputDrop => Case::Input,
+        c => c.without_oc().stage1(),
+    }
+}
+
 /// The shipped detectors a sweep needs, loaded once.
 struct Detectors {
     stage1: HashMap<Case, Box<dyn Detector>>,
@@ -269,7 +296,7 @@ impl Detectors {
     fn load(models: &Path, cases: &[Case]) -> Result<Self, SweepError> {
         let mut stage1 = HashMap::new();
         for c in cases {
-            let base = c.without_oc().stage1();
+            let base = base_case(*c);
             if let std::collections::hash_map::Entry::Vacant(e) = stage1.entry(base) {
                 e.insert(load_detector_with(models, base, Voting::Manifest)?);
             }
@@ -293,8 +320,9 @@ fn detect_sample(
     params: &FuseParams,
     cases: &[Case],
     det: &Detectors,
-    oc_prior: OcPrior,
+    cfg: &SweepConfig,
 ) -> Result<HashMap<Case, Vec<Detection>>, SweepError> {
+    let oc_prior = cfg.oc_prior;
     let frame = dataset.frame(token).map_err(DetectError::from)?;
     let drifted = fuse(&frame, params).map_err(DetectError::from)?;
     let corrected = if cases.iter().any(|c| c.is_oc()) {
@@ -307,7 +335,16 @@ fn detect_sample(
     };
     let mut proposals: HashMap<(Case, bool), Vec<Detection>> = HashMap::new();
     let mut out = HashMap::new();
-    for &case in cases {
+    if cases.contains(&Case::InputDrop) {
+        let t = cfg.drop_trace.unwrap_or(crate::detect::drop::DROP_TRACE);
+        let d = det
+            .stage1
+            .get(&Case::Input)
+            .ok_or_else(|| SweepError::BadParameter("no Input Fusion detector".into()))?;
+        let kept = crate::detect::drop::drop_uncertain(&drifted, t);
+        out.insert(Case::InputDrop, d.detect_fused(&frame, &kept)?);
+    }
+    for &case in cases.iter().filter(|c| **c != Case::InputDrop) {
         let oc = case.is_oc();
         let base = case.without_oc().stage1();
         let cloud = if oc {
@@ -398,7 +435,7 @@ pub fn run(
             .enumerate()
             .map(|(j, token)| {
                 let params = cfg.fuse_params(alpha, trial, j)?;
-                let d = detect_sample(dataset, token, &params, &cases, det, cfg.oc_prior)?;
+                let d = detect_sample(dataset, token, &params, &cases, det, cfg)?;
                 let n = done_samples.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress(n, total_samples);
                 Ok((token.clone(), d))

@@ -35,6 +35,10 @@ pub struct DetectorRun {
     /// the covariance ICP estimated; `alpha`: the prior Θ(α), as without calibration.
     #[arg(long, default_value = "icp")]
     pub oc_prior: mlod::calib::OcPrior,
+    /// `input-drop`: points with tr(Ξ) above this (m²) are removed before Input Fusion (default:
+    /// the threshold chosen on the validation scenes).
+    #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE)]
+    pub drop_trace: f32,
 }
 
 impl DetectorRun {
@@ -46,6 +50,7 @@ impl DetectorRun {
             self.vote_iou,
             &mlod::calib::IcpConfig::default(),
             self.oc_prior,
+            self.drop_trace,
         )?)
     }
 

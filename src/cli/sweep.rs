@@ -47,6 +47,10 @@ pub struct SweepArgs {
     /// true 0.1 assumed 0.02).
     #[arg(long)]
     pub assumed_alpha: Option<f64>,
+    /// `input-drop`: the tr(Ξ) threshold (m²) above which points are removed (default: the one
+    /// chosen on the validation scenes).
+    #[arg(long)]
+    pub drop_trace: Option<f32>,
     /// Models folder with manifest.json (default: assets/models).
     #[arg(long)]
     pub models: Option<PathBuf>,
@@ -94,6 +98,11 @@ pub fn run(args: SweepArgs) -> Result<()> {
         oc_prior: args.oc_prior,
         samples: sweep::spread_samples(&all, args.samples),
         assumed_alpha: args.assumed_alpha,
+        drop_trace: if args.cases.contains(&Case::InputDrop) {
+            Some(args.drop_trace.unwrap_or(mlod::detect::drop::DROP_TRACE))
+        } else {
+            None
+        },
     };
     cfg.validate()?;
     let models = args.models.clone().unwrap_or_else(default_models_dir);

@@ -245,6 +245,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
             models: Some(models.clone()),
             vote_iou: voting,
             oc_prior: Default::default(),
+            drop_trace: mlod::detect::drop::DROP_TRACE,
         };
         let mut per_case = BTreeMap::new();
         for &case in &cases {

@@ -23,6 +23,7 @@ pub mod anchors;
 pub mod calibrate;
 pub mod checkpoint;
 pub mod config;
+pub mod drop;
 pub mod gt_sampling;
 pub mod infer;
 pub mod model;
@@ -91,6 +92,10 @@ pub enum Case {
     /// MLOD-R (OC).
     #[serde(rename = "mlod-r-oc")]
     MlodROc,
+    /// The "straightforward idea" of §IV-B, an ablation: Input Fusion on the fused cloud without
+    /// its uncertain points (tr(Ξ) above a threshold chosen on the validation scenes, `drop`).
+    #[serde(rename = "input-drop")]
+    InputDrop,
 }
 
 impl Case {
@@ -129,8 +134,8 @@ impl Case {
         Case::MlodROc,
     ];
 
-    /// Every case: [`Case::EVERY`] then [`Case::OC`].
-    pub const WITH_OC: [Case; 15] = [
+    /// Every case: [`Case::EVERY`], [`Case::OC`], then the ablation [`Case::InputDrop`].
+    pub const WITH_OC: [Case; 16] = [
         Case::Top,
         Case::Left,
         Case::Right,
@@ -146,6 +151,7 @@ impl Case {
         Case::MlodIOc,
         Case::MlodFOc,
         Case::MlodROc,
+        Case::InputDrop,
     ];
 
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
@@ -221,6 +227,7 @@ impl Case {
             Case::MlodIOc => "mlod-i-oc",
             Case::MlodFOc => "mlod-f-oc",
             Case::MlodROc => "mlod-r-oc",
+            Case::InputDrop => "input-drop",
         }
     }
 
@@ -242,6 +249,7 @@ impl Case {
             Case::MlodIOc => "MLOD-I (OC)",
             Case::MlodFOc => "MLOD-F (OC)",
             Case::MlodROc => "MLOD-R (OC)",
+            Case::InputDrop => "Input Fusion, uncertain points dropped",
         }
     }
 

@@ -475,9 +475,9 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
             Some(Some(v))
         }
     };
-    if case.is_oc() {
+    if case.is_oc() || case == Case::InputDrop {
         return Err(DetectError::BadParameter(format!(
-            "{} calibrates online first: load it with mlod::refine::load_detector",
+            "{} wraps another detector: load it with mlod::refine::load_detector",
             case.paper_name()
         )));
     }

@@ -28,6 +28,11 @@ impl LoadedDetector {
     /// fuse parameters.
     fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
         let case = case.without_oc();
+        if case == Case::InputDrop {
+            let d =
+                crate::refine::load_detector(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
+            return Ok(Self::Stage1(Arc::from(d)));
+        }
         if case.is_mlod() {
             let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
             Ok(Self::Mlod(Arc::new(m)))

@@ -408,20 +408,35 @@ impl Detector for Mlod {
 /// The shipped detector of any case (stage 1, or MLOD with the folder's refiner), decoding as the
 /// manifest says, with the caller's box voting in stage 1.
 pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn Detector>, DetectError> {
-    load_detector_oc(dir, case, voting, &IcpConfig::default(), OcPrior::default())
+    load_detector_oc(
+        dir,
+        case,
+        voting,
+        &IcpConfig::default(),
+        OcPrior::default(),
+        crate::detect::drop::DROP_TRACE,
+    )
 }
 
-/// [`load_detector`] with the online calibration's settings of an (OC) case.
+/// [`load_detector`] with the online calibration's settings of an (OC) case and the threshold
+/// of `input-drop`.
 pub fn load_detector_oc(
     dir: &Path,
     case: Case,
     voting: Voting,
     icp: &IcpConfig,
     prior: OcPrior,
+    drop_trace: f32,
 ) -> Result<Box<dyn Detector>, DetectError> {
     if case.is_oc() {
-        let inner = load_detector(dir, case.without_oc(), voting)?;
+        let inner = load_detector_oc(dir, case.without_oc(), voting, icp, prior, drop_trace)?;
         return Ok(Box::new(OcDetector::new(case, inner, *icp, prior)?));
+    }
+    if case == Case::InputDrop {
+        let inner = load_detector_with(dir, Case::Input, voting)?;
+        return Ok(Box::new(crate::detect::drop::DropDetector::new(
+            inner, drop_trace,
+        )?));
     }
     if !case.is_mlod() {
         return load_detector_with(dir, case, voting);

@@ -12,7 +12,13 @@ fn dataset() -> &'static Dataset {
 fn config() -> SweepConfig {
     let all: Vec<String> = dataset().sample_tokens().iter().map(|s| s.to_string()).collect();
     SweepConfig {
-        cases: vec![Case::Top, Case::Input, Case::MlodI, Case::InputOc],
+        cases: vec![
+            Case::Top,
+            Case::Input,
+            Case::MlodI,
+            Case::InputOc,
+            Case::InputDrop,
+        ],
         alphas: vec![0.1],
         trials: 2,
         seed: 3,
@@ -20,6 +26,7 @@ fn config() -> SweepConfig {
         oc_prior: OcPrior::Icp,
         samples: spread_samples(&all, Some(2)),
         assumed_alpha: None,
+        drop_trace: Some(0.1),
     }
 }
 
@@ -61,8 +68,8 @@ fn reference() -> &'static PathBuf {
         let d = tmp("reference");
         assert_eq!(
             sweep(&d, 1, Shard::default(), None),
-            7,
-            "top once, three cases twice"
+            9,
+            "top once, four cases twice"
         );
         d
     })
@@ -95,7 +102,7 @@ fn killed_and_resumed_on_two_threads_equals_one_uninterrupted_run() {
     assert!(collect(&d, &config()).is_err(), "stopped early");
     assert_eq!(
         sweep(&d, 2, Shard::default(), None),
-        4,
+        6,
         "only the missing units run again"
     );
     let (a, b) = (files(reference()), files(&d));
@@ -182,6 +189,25 @@ fn a_cell_is_what_eval_gives_for_that_case_alpha_and_seed() {
         ..Default::default()
     };
     let report = evaluate_detections(dataset(), &dets, &opts).unwrap();
+    assert_eq!(cell.moderate, crate::eval::kitti::car_moderate_07(&report.kitti));
+    // input-drop is `mlod eval --case input-drop --drop-trace 0.1`.
+    let drop =
+        crate::refine::load_detector(&default_models_dir(), Case::InputDrop, Voting::Manifest).unwrap();
+    let dets: HashMap<String, Vec<Detection>> = config()
+        .samples
+        .iter()
+        .map(|t| {
+            (
+                t.clone(),
+                drop.detect(&dataset().frame(t).unwrap(), &params).unwrap(),
+            )
+        })
+        .collect();
+    let report = evaluate_detections(dataset(), &dets, &opts).unwrap();
+    let cell = rows
+        .iter()
+        .find(|r| r.case == Case::InputDrop && r.trial == 1)
+        .unwrap();
     assert_eq!(cell.moderate, crate::eval::kitti::car_moderate_07(&report.kitti));
     // LiDAR-Top ran once per α.
     assert_eq!(rows.iter().filter(|r| r.case == Case::Top).count(), 1);
