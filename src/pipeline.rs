@@ -192,8 +192,7 @@ fn lidar_setups<'a>(frame: &'a Frame, params: &FuseParams) -> Result<Vec<LidarSe
         };
         let applied = match cal {
             Some(l) => {
-                let moved = crate::calib::PoseError::between(&l.start, &drifted);
-                if moved.rot_deg > 1e-9 || moved.trans_m > 1e-9 {
+                if !l.started_from(&drifted) {
                     return Err(PipelineError::StaleCalibration(format!(
                         "{channel} was calibrated from another drifted extrinsic (the perturbation changed): calibrate again"
                     )));

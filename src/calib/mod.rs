@@ -256,6 +256,13 @@ impl LidarCalibration {
         PoseError::between(&self.start, truth)
     }
 
+    /// Whether this calibration was computed from the drifted extrinsic `drifted` (else it is
+    /// stale: the perturbation changed since).
+    pub fn started_from(&self, drifted: &Pose) -> bool {
+        let moved = PoseError::between(&self.start, drifted);
+        moved.rot_deg <= 1e-9 && moved.trans_m <= 1e-9
+    }
+
     /// Whether the run is flagged (not converged, or some direction degenerate): a flagged run may
     /// end farther from the truth than it started.
     pub fn flagged(&self) -> bool {

@@ -78,18 +78,17 @@ impl MlodApp {
         let (Some(frame), Some(cal)) = (self.loaded.frame.as_deref(), &self.session.oc.calibration) else {
             return false;
         };
-        let mut p = self.session.fuse.clone();
-        p.calibration = Some(cal.clone());
-        // The fuse's own check, on a frame without points to move.
+        // The fuse's own check (`LidarCalibration::started_from`), without fusing.
         cal.sample_token == frame.sample_token
             && frame
                 .auxiliaries
                 .iter()
                 .all(|scan| match cal.lidar(scan.info.channel) {
-                    Some(l) => p.noise_for(scan.info.channel).is_ok_and(|n| {
-                        let e = crate::calib::PoseError::between(&l.start, &n.apply(&scan.info.extrinsic));
-                        e.rot_deg <= 1e-9 && e.trans_m <= 1e-9
-                    }),
+                    Some(l) => self
+                        .session
+                        .fuse
+                        .noise_for(scan.info.channel)
+                        .is_ok_and(|n| l.started_from(&n.apply(&scan.info.extrinsic))),
                     None => false,
                 })
     }
