@@ -289,7 +289,8 @@ fn base_case(c: Case) -> Case {
 /// The shipped detectors a sweep needs, loaded once.
 struct Detectors {
     stage1: HashMap<Case, Box<dyn Detector>>,
-    refiner: Option<Arc<Refiner>>,
+    /// The refiner of each kind an MLOD case needs, keyed by whether it sees tr(Ξ).
+    refiners: HashMap<bool, Arc<Refiner>>,
 }
 
 impl Detectors {
@@ -301,14 +302,15 @@ impl Detectors {
                 e.insert(load_detector_with(models, base, Voting::Manifest)?);
             }
         }
-        let refiner = if cases.iter().any(|c| c.is_mlod()) {
-            Some(Arc::new(
-                Refiner::load_shipped(models).map_err(|e| DetectError::Refiner(e.to_string()))?,
-            ))
-        } else {
-            None
-        };
-        Ok(Self { stage1, refiner })
+        let mut refiners = HashMap::new();
+        for c in cases.iter().filter(|c| c.is_mlod()) {
+            if let std::collections::hash_map::Entry::Vacant(e) = refiners.entry(c.refiner_sees_trace()) {
+                let r =
+                    Refiner::load_shipped_for(models, *c).map_err(|e| DetectError::Refiner(e.to_string()))?;
+                e.insert(Arc::new(r));
+            }
+        }
+        Ok(Self { stage1, refiners })
     }
 }
 
@@ -362,9 +364,9 @@ fn detect_sample(
         let props = &proposals[&(base, oc)];
         let dets = if case.is_mlod() {
             let r = det
-                .refiner
-                .as_ref()
-                .ok_or_else(|| SweepError::BadParameter("no refiner".into()))?;
+                .refiners
+                .get(&case.refiner_sees_trace())
+                .ok_or_else(|| SweepError::BadParameter(format!("no refiner for {case}")))?;
             r.refine(cloud, props)
                 .map_err(|e| DetectError::Refiner(e.to_string()))?
                 .into_iter()

@@ -505,3 +505,53 @@ fn the_link_checker_sees_links_and_anchors() {
     let a = anchors(md);
     assert!(a.contains("top") && a.contains("why-plain-nms-tied-v2"), "{a:?}");
 }
+
+/// Every "command" string in a JSON value, with its key path.
+fn commands_in(v: &serde_json::Value, path: &str, out: &mut Vec<(String, String)>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, x) in m {
+                let p = format!("{path}/{k}");
+                match x {
+                    serde_json::Value::String(s) if k.ends_with("command") && !s.is_empty() => {
+                        out.push((p, s.clone()))
+                    }
+                    _ => commands_in(x, &p, out),
+                }
+            }
+        }
+        serde_json::Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                commands_in(x, &format!("{path}/{i}"), out);
+            }
+        }
+        _ => {}
+    }
+}
+
+#[test]
+fn model_provenance_names_the_command_a_user_types() {
+    let mut manifests = Vec::new();
+    let dir = root().join("assets/models");
+    manifests.push(dir.join("manifest.json"));
+    for e in fs::read_dir(&dir).unwrap().flatten() {
+        if e.path().join("manifest.json").is_file() {
+            manifests.push(e.path().join("manifest.json"));
+        }
+    }
+    let mut seen = 0;
+    for m in manifests {
+        let v: serde_json::Value = serde_json::from_str(&fs::read_to_string(&m).unwrap()).unwrap();
+        let mut cmds = Vec::new();
+        commands_in(&v, "", &mut cmds);
+        for (path, c) in cmds {
+            seen += 1;
+            assert!(
+                c.starts_with("mlod "),
+                "{}{path}: the command is `{c}`; provenance names the command as a user types it (`mlod …`)",
+                m.display()
+            );
+        }
+    }
+    assert!(seen >= 10, "only {seen} commands found in the manifests");
+}

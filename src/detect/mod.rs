@@ -96,6 +96,12 @@ pub enum Case {
     /// its uncertain points (tr(Ξ) above a threshold chosen on the validation scenes, `drop`).
     #[serde(rename = "input-drop")]
     InputDrop,
+    /// An ablation: MLOD-I with a refiner trained identically (same data, seed and steps) but
+    /// without the tr(Ξ) point feature (`mlod train refiner --no-trace`): what the uncertainty
+    /// channel itself brings.
+    #[serde(rename = "mlod-i-notrace")]
+    #[value(name = "mlod-i-notrace")]
+    MlodINoTrace,
 }
 
 impl Case {
@@ -134,8 +140,9 @@ impl Case {
         Case::MlodROc,
     ];
 
-    /// Every case: [`Case::EVERY`], [`Case::OC`], then the ablation [`Case::InputDrop`].
-    pub const WITH_OC: [Case; 16] = [
+    /// Every case: [`Case::EVERY`], [`Case::OC`], then the ablations [`Case::InputDrop`] and
+    /// [`Case::MlodINoTrace`].
+    pub const WITH_OC: [Case; 17] = [
         Case::Top,
         Case::Left,
         Case::Right,
@@ -152,13 +159,14 @@ impl Case {
         Case::MlodFOc,
         Case::MlodROc,
         Case::InputDrop,
+        Case::MlodINoTrace,
     ];
 
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
     /// (OC) variant for an MLOD (OC) case.
     pub fn stage1(self) -> Case {
         match self {
-            Case::MlodI => Case::Input,
+            Case::MlodI | Case::MlodINoTrace => Case::Input,
             Case::MlodF => Case::Feature,
             Case::MlodR => Case::Result,
             Case::MlodIOc => Case::InputOc,
@@ -183,7 +191,13 @@ impl Case {
 
     /// Whether this case runs the stage-2 refiner.
     pub fn is_mlod(self) -> bool {
-        Case::MLOD.contains(&self.without_oc())
+        Case::MLOD.contains(&self.without_oc()) || self == Case::MlodINoTrace
+    }
+
+    /// Whether this MLOD case's refiner sees tr(Ξ) (all but the ablation [`Case::MlodINoTrace`],
+    /// whose refiner is the manifest's `refiner_notrace`).
+    pub fn refiner_sees_trace(self) -> bool {
+        self != Case::MlodINoTrace
     }
 
     /// Whether this case calibrates the auxiliary LiDARs online before detecting.
@@ -228,6 +242,7 @@ impl Case {
             Case::MlodFOc => "mlod-f-oc",
             Case::MlodROc => "mlod-r-oc",
             Case::InputDrop => "input-drop",
+            Case::MlodINoTrace => "mlod-i-notrace",
         }
     }
 
@@ -250,6 +265,7 @@ impl Case {
             Case::MlodFOc => "MLOD-F (OC)",
             Case::MlodROc => "MLOD-R (OC)",
             Case::InputDrop => "Input Fusion, uncertain points dropped",
+            Case::MlodINoTrace => "MLOD-I without tr(Ξ)",
         }
     }
 

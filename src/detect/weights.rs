@@ -184,6 +184,10 @@ pub struct Manifest {
     /// The stage-2 refiner of the MLOD cases (`mlod train refiner`), one for all three.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refiner: Option<ModelEntry>,
+    /// The ablation's refiner, trained like `refiner` but without the tr(Ξ) point feature
+    /// (`mlod train refiner --no-trace`), used by `mlod-i-notrace`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refiner_notrace: Option<ModelEntry>,
     /// How the refiner's output is decoded, chosen on the validation split
     /// (`mlod train tune-refiner`); absent: the refined score alone, no NMS after refinement.
     #[serde(default, skip_serializing_if = "Option::is_none")]

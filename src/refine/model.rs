@@ -165,16 +165,47 @@ impl Refiner {
 
     /// The refiner of a models folder, checked against its manifest, with the manifest's decoding.
     pub fn load_shipped(dir: &Path) -> Result<Self, RefineError> {
+        Self::load_shipped_for(dir, Case::MlodI)
+    }
+
+    /// The refiner an MLOD case runs: the manifest's `refiner`, or its `refiner_notrace` for the
+    /// ablation [`Case::MlodINoTrace`].
+    pub fn load_shipped_for(dir: &Path, case: Case) -> Result<Self, RefineError> {
         let manifest = Manifest::load(dir)?;
-        let entry = manifest.refiner.as_ref().ok_or_else(|| RefineError::File {
+        let (entry, train) = if case.refiner_sees_trace() {
+            (manifest.refiner.as_ref(), "mlod train refiner")
+        } else {
+            (manifest.refiner_notrace.as_ref(), "mlod train refiner --no-trace")
+        };
+        let entry = entry.ok_or_else(|| RefineError::File {
             path: dir.join(Manifest::FILE),
-            what: "no refiner: train one with `mlod train refiner`".into(),
+            what: format!("no refiner for {case}: train one with `{train}`"),
         })?;
         let decoding = Decoding::of(manifest.refine.as_ref()).map_err(|what| RefineError::File {
             path: dir.join(Manifest::FILE),
             what,
         })?;
-        Self::load(&dir.join(&entry.file), Some(&entry.sha256), decoding)
+        let path = dir.join(&entry.file);
+        let refiner = Self::load(&path, Some(&entry.sha256), decoding)?;
+        if refiner.config.gather.features.trace != case.refiner_sees_trace() {
+            return Err(RefineError::File {
+                path,
+                what: format!(
+                    "its points {} tr(Ξ), but {case}'s refiner must {}",
+                    if refiner.config.gather.features.trace {
+                        "carry"
+                    } else {
+                        "lack"
+                    },
+                    if case.refiner_sees_trace() {
+                        "see it"
+                    } else {
+                        "not see it"
+                    }
+                ),
+            });
+        }
+        Ok(refiner)
     }
 
     /// Refines `proposals` on `cloud` (boxes in the base frame). The refined boxes come in the
@@ -453,6 +484,6 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
         )));
     }
     let stage1 = load_detector_with(dir, case.stage1(), voting)?;
-    let refiner = Refiner::load_shipped(dir).map_err(|e| DetectError::Refiner(e.to_string()))?;
+    let refiner = Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
     Ok(Mlod::new(case, stage1, Arc::new(refiner)))
 }

@@ -539,7 +539,13 @@ pub fn train_refiner(
         } else {
             Manifest::default()
         };
-        manifest.refiner = Some(ModelEntry {
+        // A refiner without the tr(Ξ) feature is the ablation's (`mlod-i-notrace`).
+        let slot = if cfg.model.gather.features.trace {
+            &mut manifest.refiner
+        } else {
+            &mut manifest.refiner_notrace
+        };
+        *slot = Some(ModelEntry {
             file: file_name_of(&cfg.out),
             sha256: sha256.clone(),
             command: cfg.command.clone(),

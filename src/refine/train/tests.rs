@@ -171,6 +171,48 @@ fn a_few_steps_lower_the_loss_and_a_resume_is_bit_identical() {
         assert!(r.detection.box3d.is_valid() && (0.0..=1.0).contains(&r.detection.score));
         assert!(r.active.len() <= 32 && r.active.iter().all(|&k| (k as usize) < cloud.len()));
     }
+
+    // The ablation's refiner (`--no-trace`) goes to the manifest's `refiner_notrace`, beside the
+    // traced one, and only mlod-i-notrace loads it.
+    let mut nt = cfg.clone();
+    nt.steps = 2;
+    nt.out = dir.join("a/refiner-notrace.safetensors");
+    nt.checkpoint = dir.join("a/refiner-notrace.ckpt.safetensors");
+    nt.loss_csv = dir.join("a/refiner-notrace.loss.csv");
+    nt.model.gather.features.trace = false;
+    let nts = train_refiner(&nt, |_| {}).unwrap();
+    let folder = nt.out.parent().unwrap();
+    let m = Manifest::load(folder).unwrap();
+    assert_eq!(
+        m.refiner.as_ref().map(|e| e.sha256.as_str()),
+        Some(straight.sha256.as_str())
+    );
+    assert_eq!(
+        m.refiner_notrace.as_ref().map(|e| e.sha256.as_str()),
+        Some(nts.sha256.as_str())
+    );
+    let plain = Refiner::load_shipped_for(folder, Case::MlodI).unwrap();
+    let blind = Refiner::load_shipped_for(folder, Case::MlodINoTrace).unwrap();
+    assert!(plain.config.gather.features.trace && !blind.config.gather.features.trace);
+    assert_eq!(blind.config.gather.features.channels(), 3);
+    assert_eq!(blind.refine(&cloud, &proposals).unwrap().len(), proposals.len());
+    // Entries swapped by hand: each case refuses a refiner of the other kind, naming the file.
+    let mut swapped = m.clone();
+    std::mem::swap(&mut swapped.refiner, &mut swapped.refiner_notrace);
+    swapped.save(folder).unwrap();
+    let e = Refiner::load_shipped_for(folder, Case::MlodINoTrace)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("refiner.safetensors") && e.contains("tr(Ξ)"), "{e}");
+    assert!(Refiner::load_shipped_for(folder, Case::MlodI).is_err());
+    // No ablation refiner: the error says how to train one.
+    let mut none = m;
+    none.refiner_notrace = None;
+    none.save(folder).unwrap();
+    let e = Refiner::load_shipped_for(folder, Case::MlodINoTrace)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--no-trace"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
