@@ -78,6 +78,11 @@ fn snapshot_alpha_004_trace_and_bev() {
 #[test]
 fn alpha_slider_moves_the_cloud_and_changes_the_legend() {
     let mut h = harness(None);
+    assert_eq!(
+        h.state().session().color.mode,
+        ColorMode::Source,
+        "first sight: the LiDARs in their colours"
+    );
     let before = h.state().fused().unwrap().clone();
     let (frac_before, hist_before) = {
         let (f, hi) = h.state().uncertainty_summary();
@@ -92,6 +97,11 @@ fn alpha_slider_moves_the_cloud_and_changes_the_legend() {
     h.run_steps(3);
     let app = h.state();
     assert_eq!(app.session().fuse.perturbation.alpha, 0.04);
+    assert_eq!(
+        app.session().color.mode,
+        ColorMode::Trace,
+        "α left 0: the colouring shows tr(Ξ)"
+    );
     let after = app.fused().unwrap();
     let top = after.lidars[0].range.clone();
     assert_eq!(
@@ -111,6 +121,27 @@ fn alpha_slider_moves_the_cloud_and_changes_the_legend() {
     );
     let img_after = h.render().unwrap();
     assert_ne!(img_before.as_raw(), img_after.as_raw());
+}
+
+#[test]
+fn a_colouring_the_user_chose_survives_the_first_drift() {
+    let mut h = harness(None);
+    h.get_by_label("height").click();
+    h.run_steps(2);
+    assert_eq!(h.state().session().color.mode, ColorMode::Height);
+    h.get_all_by_role(Role::Slider)
+        .next()
+        .expect("the α slider")
+        .set_value_accesskit(0.02);
+    h.run_steps(3);
+    assert_eq!(h.state().session().fuse.perturbation.alpha, 0.02);
+    assert_eq!(h.state().session().color.mode, ColorMode::Height);
+    // A session (here: the default one, given explicitly) keeps its colouring at any α.
+    let mut s = Session::new(default_dataset());
+    s.color.mode = ColorMode::Source;
+    s.fuse.perturbation = Perturbation::new(0.04, 0).unwrap();
+    let h = harness(Some(s));
+    assert_eq!(h.state().session().color.mode, ColorMode::Source);
 }
 
 #[test]

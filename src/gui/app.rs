@@ -95,9 +95,13 @@ impl MlodApp {
 
     /// The app without a window (state and data only); the screenshot command uses this.
     pub fn headless(options: AppOptions, ctx: Option<egui::Context>) -> Self {
-        let session = options
-            .session
-            .unwrap_or_else(|| Session::new(options.dataset.clone()));
+        // First sight (no session): the LiDARs in their paper colours, until α leaves 0.
+        let auto_color = options.session.is_none();
+        let session = options.session.unwrap_or_else(|| {
+            let mut s = Session::new(options.dataset.clone());
+            s.color.mode = ColorMode::Source;
+            s
+        });
         let camera_from_session = session.camera.is_some();
         let mut view = Viewport::default();
         view.settings.point_size = session.point_size;
@@ -119,6 +123,7 @@ impl MlodApp {
             loaded: Loaded::default(),
             shell: Shell {
                 show_timings: !options.synchronous,
+                auto_color,
                 ..Default::default()
             },
             viewport_rect: egui::Rect::NOTHING,
@@ -334,6 +339,13 @@ impl MlodApp {
                     .collect();
                 self.loaded.fused = Some(cloud);
                 self.loaded.fuse_generation += 1;
+                if self.shell.auto_color && self.session.fuse.perturbation.alpha > 0.0 {
+                    // First sight: the drift is what there is to see now.
+                    self.shell.auto_color = false;
+                    if self.session.color.mode == ColorMode::Source {
+                        self.session.color.mode = ColorMode::Trace;
+                    }
+                }
                 self.rebuild_scene();
                 if auto_run {
                     self.run_detector();
@@ -431,6 +443,7 @@ impl MlodApp {
         let same_dataset = self.loaded.dataset.is_some() && s.dataset == self.session.dataset;
         self.wanted_token = s.sample_token.clone();
         self.session = s;
+        self.shell.auto_color = false;
         if same_dataset {
             match self.wanted_token.clone() {
                 Some(t)

@@ -414,6 +414,10 @@ fn coloring(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             changed |= ui.radio_value(&mut c.mode, m, m.label()).changed();
         }
     });
+    if changed {
+        // The user's choice outlives the first-sight switch to tr(Ξ).
+        p.shell.auto_color = false;
+    }
     if c.mode != ColorMode::Source {
         ui.horizontal(|ui| {
             changed |= ui.radio_value(&mut c.scale, Scale::Linear, "linear").changed();

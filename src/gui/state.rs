@@ -79,6 +79,9 @@ pub struct Shell {
     pub show_help: bool,
     /// Wall-clock timings in the UI (off for deterministic snapshots).
     pub show_timings: bool,
+    /// First sight: the window opened without a session shows the source-LiDAR colours at α = 0
+    /// and switches to tr(Ξ) the first time α leaves 0, unless the user chose a colouring first.
+    pub auto_color: bool,
 }
 
 impl Shell {
