@@ -11,6 +11,7 @@ pub mod detect;
 pub mod eval;
 pub mod export;
 pub mod geometry;
+pub mod inspect;
 pub mod io;
 pub mod lyft;
 pub mod pipeline;

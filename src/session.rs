@@ -60,6 +60,41 @@ pub struct Session {
     /// Online calibration: the last ICP result and whether the corrected cloud is shown.
     #[serde(default, skip_serializing_if = "OcSession::is_unset")]
     pub oc: OcSession,
+    /// The selected box (the details panel's), kept across re-runs by the object it is on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection: Option<BoxSelection>,
+}
+
+/// The layer a selected box belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoxLayer {
+    /// A ground-truth box (green).
+    Truth,
+    /// A stage-1 box (blue; an MLOD case's proposal).
+    Proposal,
+    /// An MLOD case's refined box (red).
+    Refined,
+}
+
+/// A selected box, stored by what identifies its object across α changes and re-runs: the
+/// ground-truth annotation it is on (the box itself for `truth`, the matched truth for a
+/// prediction), else the position it was at.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoxSelection {
+    pub layer: BoxLayer,
+    /// The annotation token of the object, if the box is (or matched) a ground-truth box.
+    pub annotation: Option<String>,
+    /// The box's centre when last found (base frame, m): an unmatched prediction is found again
+    /// as the nearest box of its layer and category within [`BoxSelection::REFIND_RADIUS`].
+    pub center: [f64; 3],
+    pub category: String,
+}
+
+impl BoxSelection {
+    /// How far (m, centre to centre in x–y) an unmatched prediction may have moved and still be
+    /// "the same" box after a re-run.
+    pub const REFIND_RADIUS: f64 = 2.0;
 }
 
 /// The online calibration of a session (the window's "calibrate (ICP)").
@@ -145,6 +180,7 @@ impl Session {
             point_size: 2.0,
             detection: DetectionSettings::default(),
             oc: OcSession::default(),
+            selection: None,
         }
     }
 
@@ -224,6 +260,11 @@ impl Session {
                 "detection.match_iou",
                 format!("{} (must be in (0, 1])", d.match_iou),
             ));
+        }
+        if let Some(sel) = &self.selection {
+            if sel.center.iter().any(|v| !v.is_finite()) {
+                return Err(bad("selection.center", "has a non-finite value".into()));
+            }
         }
         if let Some(c) = &self.camera {
             let vals = [

@@ -864,3 +864,164 @@ fn write_screenshot_sessions() {
     assert!(h.state().session().oc.show_corrected);
     save(&h, "calibration_after");
 }
+
+#[test]
+fn a_selected_box_shows_what_eval_per_box_reports_and_survives_alpha_and_sessions() {
+    use mlod::eval::BoxError;
+    use mlod::gui::SelectionDetails;
+    use mlod::session::BoxLayer;
+    let models = mlod_models();
+    let mut s = mlod_session(0.04, ColorMode::Trace);
+    s.detection.auto_run = true;
+    let mut h = harness_with(Some(s), Some(models.clone()));
+    h.run_steps(3);
+    let settings = h.state().session().detection;
+    // The best-scoring refined box that is a true positive.
+    let (k, drawn) = {
+        let (v, _) = h.state().detection().expect("MLOD-I ran on load");
+        let r = v.refinement.as_ref().unwrap();
+        let k = (0..r.refined.len())
+            .find(|&k| matches!(r.outcomes[k], PredOutcome::TruePositive { .. }))
+            .expect("a true positive");
+        let drawn: Vec<Detection> = r
+            .refined
+            .iter()
+            .map(|x| x.detection.clone())
+            .filter(|d| d.score >= settings.min_score)
+            .collect();
+        (k, drawn)
+    };
+    h.state_mut().select_box(Some((BoxLayer::Refined, k)));
+    h.run_steps(2);
+    let d = match h.state().selection_details() {
+        Some(SelectionDetails::Prediction { details, .. }) => (**details).clone(),
+        other => panic!("prediction details expected, got {other:?}"),
+    };
+    let truth = d.truth.clone().expect("its ground truth");
+    assert!(truth.matched);
+    // `mlod eval --per-box` on the drawn refined boxes, at the panel's match IoU: the same truth,
+    // IoU and residuals.
+    let token = h.state().frame().unwrap().sample_token.clone();
+    let dataset = Dataset::open(default_dataset()).unwrap();
+    let opts = EvalOptions {
+        per_box: Some(MatchRule {
+            iou_threshold: settings.match_iou,
+            kind: IouKind::ThreeD,
+            max_range: f64::INFINITY,
+        }),
+        ..Default::default()
+    };
+    let report = evaluate_detections(&dataset, &HashMap::from([(token.clone(), drawn)]), &opts).unwrap();
+    let sample = report
+        .per_box
+        .unwrap()
+        .into_iter()
+        .find(|s| s.sample_token == token)
+        .unwrap();
+    let g = sample
+        .gts
+        .iter()
+        .find(|g| g.annotation_token == truth.annotation_token)
+        .expect("the truth in the per-box report");
+    let GtOutcome::Matched { iou, .. } = g.outcome else {
+        panic!("eval says {:?}", g.outcome)
+    };
+    assert!(
+        (d.iou_after.unwrap() - iou).abs() < 1e-12,
+        "{:?} vs {iou}",
+        d.iou_after
+    );
+    assert_eq!(d.residual_after, g.error);
+    // Before refinement: the proposal against the same truth.
+    let frame = h.state().frame().unwrap();
+    let (v, _) = h.state().detection().unwrap();
+    let proposal = &v.detections[v.refinement.as_ref().unwrap().refined[k].proposal];
+    let gt_box = &frame.boxes[truth.index].box3d;
+    assert_eq!(
+        d.residual_before,
+        Some(BoxError::between(&proposal.box3d, gt_box))
+    );
+    assert_eq!(d.proposal_score, proposal.score);
+    // The points inside are the library's count, split over the LiDARs.
+    let refined_box = v.refinement.as_ref().unwrap().refined[k].detection.box3d;
+    let stats = mlod::pipeline::box_stats(h.state().fused().unwrap(), &refined_box);
+    assert_eq!(d.inside.total, stats.points);
+    assert_eq!(
+        d.inside.per_lidar.iter().map(|p| p.1).sum::<usize>(),
+        stats.points
+    );
+    assert!(
+        d.active.as_ref().is_some_and(|a| a.total > 0),
+        "active points counted"
+    );
+    // The panel shows them.
+    assert!(h.query_by_label_contains("Selected box").is_some());
+    assert!(
+        h.query_by_label(&format!("{iou:.3}")).is_some(),
+        "IoU after {iou:.3} shown"
+    );
+    let active = d.active.as_ref().unwrap().total;
+    assert!(h.query_by_label_contains(&format!("active points {active}:")).is_some());
+
+    // F points the camera at it.
+    h.key_press(egui::Key::F);
+    h.run_steps(2);
+    let target = h.state().viewport().0.camera.target;
+    let c = refined_box.center;
+    assert!(
+        (target[0] as f64 - c[0]).abs() < 1e-3 && (target[1] as f64 - c[1]).abs() < 1e-3,
+        "{target:?} vs {c:?}"
+    );
+
+    // Another α: re-fused and re-run, the same object is selected again.
+    h.get_all_by_role(Role::Slider)
+        .next()
+        .expect("the α slider")
+        .set_value_accesskit(0.02);
+    h.run_steps(4);
+    assert_eq!(h.state().session().fuse.perturbation.alpha, 0.02);
+    let sel = h.state().session().selection.clone().expect("kept");
+    assert_eq!(sel.annotation.as_deref(), Some(truth.annotation_token.as_str()));
+    let (layer, k2) = h.state().selected_box().expect("found again at α = 0.02");
+    assert_eq!(layer, BoxLayer::Refined);
+    let (v, _) = h.state().detection().unwrap();
+    let PredOutcome::TruePositive { gt, .. } = v.refinement.as_ref().unwrap().outcomes[k2] else {
+        panic!("the re-found box is not a match")
+    };
+    assert_eq!(gt, truth.index, "on the same ground-truth object");
+
+    // A saved session reopens with the same selection, pixel for pixel.
+    let path = std::env::temp_dir().join(format!("mlod-gui-selection-{}.json", std::process::id()));
+    h.state().current_session().save(&path).unwrap();
+    let loaded = Session::load(&path).unwrap();
+    let _ = std::fs::remove_file(&path);
+    assert_eq!(loaded.selection, h.state().session().selection);
+    let img_a = h.render().unwrap();
+    let mut b = harness_with(Some(loaded), Some(models));
+    b.run_steps(3);
+    assert_eq!(b.state().selected_box(), h.state().selected_box());
+    assert_eq!(b.state().selection_details(), h.state().selection_details());
+    let img_b = b.render().unwrap();
+    assert!(
+        img_a.as_raw() == img_b.as_raw(),
+        "the reopened session draws other pixels"
+    );
+
+    // Escape clears it; a ground-truth box can be selected too.
+    h.key_press(egui::Key::Escape);
+    h.run_steps(2);
+    assert!(h.state().session().selection.is_none() && h.state().selected_box().is_none());
+    h.state_mut().select_box(Some((BoxLayer::Truth, truth.index)));
+    h.run_steps(2);
+    match h.state().selection_details() {
+        Some(SelectionDetails::Truth {
+            annotation,
+            detected_iou,
+            ..
+        }) => {
+            assert_eq!(annotation, &truth.annotation_token);
+            assert!(detected_iou.is_some(), "detected at α = 0.02");
+        }
+        other => panic!("truth details expected, got {other:?}"),
+    }
+}

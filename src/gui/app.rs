@@ -5,6 +5,7 @@
 
 mod calibration;
 mod detection;
+mod selection;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -254,7 +255,10 @@ impl MlodApp {
                             self.ego_heading = ego_heading(&frame);
                             if self.loaded.detection.as_ref().is_some_and(|d| d.token != token) {
                                 self.loaded.detection = None;
-                                self.loaded.selected_refined = None;
+                            }
+                            if self.session.sample_token.as_deref() != Some(token.as_str()) {
+                                // Another sample: other objects.
+                                self.session.selection = None;
                             }
                             self.session.sample_token = Some(token);
                             self.loaded.frame = Some(frame);
@@ -347,6 +351,7 @@ impl MlodApp {
                     }
                 }
                 self.rebuild_scene();
+                self.resolve_selection();
                 if auto_run {
                     self.run_detector();
                 }
@@ -540,6 +545,8 @@ impl MlodApp {
                 Action::SetPreset(v) => self.set_preset(v),
                 Action::StepSample(d) => self.step_sample(d),
                 Action::Refuse => self.mark_fuse(),
+                Action::ClearSelection => self.select_box(None),
+                Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),
                 Action::Calibrate => self.calibrate(),
@@ -588,9 +595,9 @@ impl MlodApp {
         self.hovered_box = out.hovered_box;
         self.hovered_detection = out.hovered_detection;
         self.hovered_refined = out.hovered_refined;
-        if let Some(k) = out.clicked {
-            // A click selects the refined box under the pointer; elsewhere it clears.
-            self.loaded.selected_refined = k;
+        if let Some(pick) = out.clicked {
+            // A click selects the box under the pointer; elsewhere it clears.
+            self.select_box(pick);
         }
         if self.update_highlight() {
             ui.ctx().request_repaint();

@@ -18,8 +18,8 @@ use egui_wgpu::wgpu;
 
 pub use app::{AppOptions, MlodApp};
 pub use state::{
-    DetectionCounts, DetectionView, Refinement, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR,
-    LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR,
+    DetectionCounts, DetectionView, Refinement, SelectionDetails, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR,
+    GT_COLOR, LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
 };
 
 /// The window title (screenshots find the window by it).

@@ -11,7 +11,7 @@ use super::state::Loaded;
 use super::viewport::{self, SceneHandle, Viewport};
 use crate::eval::{GtOutcome, PredOutcome};
 use crate::pipeline::{box_stats, BoxStats};
-use crate::session::Session;
+use crate::session::{BoxLayer, Session};
 
 /// What the overlay reads.
 pub struct OverlayInput<'a> {
@@ -32,9 +32,10 @@ pub struct OverlayOutput {
     pub hovered_detection: Option<usize>,
     /// The refined box under the pointer (index in the refinement on screen).
     pub hovered_refined: Option<usize>,
-    /// A click in the viewport (not a drag): the refined box under the pointer (the smallest on
-    /// screen, whatever else competes for the hover), or none.
-    pub clicked: Option<Option<usize>>,
+    /// A click in the viewport (not a drag): the box under the pointer — a refined one first
+    /// (the smallest on screen, whatever else competes for the hover), else the hovered one — or
+    /// none.
+    pub clicked: Option<Option<(BoxLayer, usize)>>,
     /// A message for a toast (a double-clicked point).
     pub message: Option<String>,
 }
@@ -154,7 +155,14 @@ pub fn show(
         }
     }
     if clicked {
-        result.clicked = Some(best_refined.map(|(k, _)| k));
+        let pick = best_refined
+            .map(|(k, _)| (BoxLayer::Refined, k))
+            .or(best.map(|(h, _)| match h {
+                Hovered::Truth(i) => (BoxLayer::Truth, i),
+                Hovered::Proposal(i) => (BoxLayer::Proposal, i),
+                Hovered::Refined(k) => (BoxLayer::Refined, k),
+            }));
+        result.clicked = Some(pick);
     }
     match best {
         Some((Hovered::Truth(bi), _)) => {

@@ -10,6 +10,7 @@ use egui::{Color32, RichText, Sense, Stroke};
 
 mod calibration;
 mod detection;
+mod selection;
 
 use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
 use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
@@ -46,12 +47,13 @@ fn save_dialog(title: &str, filter: (&str, &[&str]), name: &str) -> Option<PathB
 }
 
 /// The keyboard shortcuts (when no text field has the focus): D runs the detector, ←/→ step
-/// through the samples, B toggles bird's eye, F1 or ? the help, Esc closes it.
+/// through the samples, B toggles bird's eye, F points the camera at the selected box, F1 or ?
+/// the help, Esc closes it (or cancels a calibration, or clears the selection).
 pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
     if ctx.egui_wants_keyboard_input() {
         return;
     }
-    let (detect, left, right, help, esc, bev) = ctx.input(|i| {
+    let (detect, left, right, help, esc, bev, focus) = ctx.input(|i| {
         (
             i.key_pressed(egui::Key::D),
             i.key_pressed(egui::Key::ArrowLeft),
@@ -62,8 +64,12 @@ pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
                     .any(|e| matches!(e, egui::Event::Text(t) if t == "?")),
             i.key_pressed(egui::Key::Escape),
             i.key_pressed(egui::Key::B),
+            i.key_pressed(egui::Key::F),
         )
     });
+    if focus {
+        p.act(Action::FocusSelection);
+    }
     if detect {
         p.act(Action::RunDetector);
     }
@@ -77,9 +83,14 @@ pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
         p.shell.show_help = !p.shell.show_help;
     }
     if esc {
-        p.shell.show_help = false;
-        if p.loaded.calibrating.is_some() {
+        // Escape undoes the most recent thing first: the help, a calibration in flight, then the
+        // selection.
+        if p.shell.show_help {
+            p.shell.show_help = false;
+        } else if p.loaded.calibrating.is_some() {
             p.act(Action::CancelCalibration);
+        } else if p.loaded.selected.is_some() || p.session.selection.is_some() {
+            p.act(Action::ClearSelection);
         }
     }
     if bev {
@@ -264,6 +275,7 @@ pub fn controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         perturbation(p, ui);
         ui.separator();
         detection::detection(p, ui);
+        selection::selection(p, ui);
         ui.separator();
         coloring(p, ui);
         ui.separator();
@@ -626,7 +638,7 @@ pub fn help_overlay(p: &mut Panels<'_>, ctx: &egui::Context) {
     egui::Window::new("Keyboard and mouse").open(&mut open).collapsible(false).resizable(false).anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0]).show(ctx, |ui| {
         ui.monospace(CONTROLS_HELP);
         ui.separator();
-        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the detector (Detection panel)\nF1 or ?     this help\nEsc         close");
+        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the detector (Detection panel)\nF           focus the selected box\nF1 or ?     this help\nEsc         close / cancel / clear the selection");
         ui.separator();
         ui.label("Drop a dataset folder or a session .json on the window to open it.");
     });

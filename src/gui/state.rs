@@ -15,10 +15,11 @@ use super::viewport::{Camera, Projection, View};
 use crate::detect::{Case, Detection};
 use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::{iou_3d, IouKind};
+use crate::inspect::{PointsInside, PredictionDetails};
 use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::pipeline::FusedCloud;
 use crate::refine::Refined;
-use crate::session::{CameraPose, DetectionSettings};
+use crate::session::{BoxLayer, CameraPose, DetectionSettings};
 
 /// Ground-truth box colour (paper: green).
 pub const GT_COLOR: [u8; 4] = [70, 230, 110, 255];
@@ -30,6 +31,8 @@ pub const FALSE_POSITIVE_COLOR: [u8; 4] = [150, 160, 200, 255];
 pub const REFINED_COLOR: [u8; 4] = [235, 60, 60, 255];
 /// A refined box that matches no ground truth: a greyed red.
 pub const REFINED_FALSE_POSITIVE_COLOR: [u8; 4] = [200, 150, 150, 255];
+/// The selected box, drawn over its layer's colour: amber, a colour no layer uses.
+pub const SELECTED_COLOR: [u8; 4] = [255, 200, 40, 255];
 /// The thin line from a proposal's centre to its refinement's: a dimmer red.
 pub const LINK_COLOR: [u8; 4] = [150, 55, 55, 255];
 /// The active points (§V-C) of the hovered or selected refined box: white, a colour no
@@ -61,6 +64,10 @@ pub enum Action {
     Rematch,
     /// A layer was switched on or off: rebuild the box lines.
     RebuildLines,
+    /// Clear the selected box (Escape).
+    ClearSelection,
+    /// Point the camera at the selected box (F).
+    FocusSelection,
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -118,15 +125,46 @@ pub struct Loaded {
     pub detection: Option<DetectionView>,
     /// A detector run is in flight.
     pub detecting: bool,
-    /// The refined box clicked in the viewport (index into the refinement on screen).
-    pub selected_refined: Option<usize>,
+    /// The selected box on screen (its layer and index: into the frame's boxes, the detection's
+    /// proposals or its refinement), resolved from the session's selection.
+    pub selected: Option<(BoxLayer, usize)>,
+    /// What the details panel shows of it.
+    pub selection_details: Option<SelectionDetails>,
     /// The id of the calibration in flight.
     pub calibrating: Option<u64>,
     /// Wall time of the last calibration (ms).
     pub calibrate_ms: f64,
 }
 
+/// The details panel's content for the selected box.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SelectionDetails {
+    /// A proposal or a refined box.
+    Prediction {
+        layer: BoxLayer,
+        index: usize,
+        details: Box<PredictionDetails>,
+    },
+    /// A ground-truth box: its points and the box that detected it (IoU), if any.
+    Truth {
+        index: usize,
+        annotation: String,
+        category: String,
+        inside: PointsInside,
+        detected_iou: Option<f64>,
+    },
+}
+
 impl Loaded {
+    /// The selected refined box (index into the refinement on screen), if a refined box is
+    /// selected.
+    pub fn selected_refined(&self) -> Option<usize> {
+        match self.selected {
+            Some((BoxLayer::Refined, k)) => Some(k),
+            _ => None,
+        }
+    }
+
     /// Whether the detection on screen was made before the last change of perturbation or with
     /// another case than `case`.
     pub fn detection_is_stale(&self, case: Case) -> bool {
@@ -306,11 +344,14 @@ fn match_layer(
         .collect();
     let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
     let m = match_sample(&shown, &known_gts, &rule);
+    // Back to the frame's ground-truth indices and the run's detection indices.
     let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
     for (k, o) in kept.iter().zip(m.preds) {
-        outcomes[*k] = o;
+        outcomes[*k] = match o {
+            PredOutcome::TruePositive { gt, iou } => PredOutcome::TruePositive { gt: known[gt], iou },
+            other => other,
+        };
     }
-    // Back to the frame's ground-truth indices and the run's detection indices.
     let mut gt_outcomes = vec![GtOutcome::Ignored; gts.len()];
     for (&j, g) in known.iter().zip(m.gts) {
         gt_outcomes[j] = match g {

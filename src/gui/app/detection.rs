@@ -10,9 +10,10 @@ use crate::eval::PredOutcome;
 use crate::gui::jobs::{DetectOutput, DetectRequest};
 use crate::gui::state::{
     DetectionCounts, DetectionView, RawDetection, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR,
-    LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR,
+    LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
 };
 use crate::gui::viewport::{box_lines, grid_lines, LineVertex};
+use crate::session::BoxLayer;
 
 impl MlodApp {
     /// Runs the session's case on the sample on screen, in the background. A request while one
@@ -86,12 +87,10 @@ impl MlodApp {
                     };
                     let frame = self.loaded.frame.as_deref();
                     self.loaded.detection = Some(DetectionView::matched(raw, frame, &self.session.detection));
-                    // A new refinement: indices of the old one mean nothing (clearing both
-                    // unhighlights whatever was highlighted).
-                    self.loaded.selected_refined = None;
+                    // A new run: indices of the old one mean nothing; the selection is found
+                    // again by its object (this also redraws the lines and the highlight).
                     self.hovered_refined = None;
-                    self.rebuild_lines();
-                    self.update_highlight();
+                    self.resolve_selection();
                 }
                 self.detectors.insert(case, out.detector);
             }
@@ -121,8 +120,7 @@ impl MlodApp {
             let frame = self.loaded.frame.as_deref();
             self.loaded.detection = Some(d.rematched(frame, &self.session.detection));
         }
-        self.rebuild_lines();
-        self.update_highlight();
+        self.resolve_selection();
     }
 
     /// The detection on screen and its counts (drawn boxes: score ≥ the session's min score; the
@@ -131,26 +129,13 @@ impl MlodApp {
         self.loaded.detection(self.session.detection.min_score)
     }
 
-    /// Selects a refined box (index into the refinement on screen) or clears the selection: its
-    /// active points stay highlighted while no refined box is hovered.
-    pub fn select_refined(&mut self, k: Option<usize>) {
-        let n = self
-            .loaded
-            .detection
-            .as_ref()
-            .and_then(|d| d.refinement.as_ref())
-            .map_or(0, |r| r.refined.len());
-        self.loaded.selected_refined = k.filter(|&k| k < n);
-        self.update_highlight();
-    }
-
     /// The proposal and the refined box under the pointer last frame (indices into the detection
     /// on screen), and the selected refined box.
     pub fn hovered_detection(&self) -> (Option<usize>, Option<usize>, Option<usize>) {
         (
             self.hovered_detection,
             self.hovered_refined,
-            self.loaded.selected_refined,
+            self.loaded.selected_refined(),
         )
     }
 
@@ -169,7 +154,7 @@ impl MlodApp {
             return None;
         }
         self.hovered_refined
-            .or(self.loaded.selected_refined)
+            .or(self.loaded.selected_refined())
             .filter(|&k| k < r.refined.len())
     }
 
@@ -219,6 +204,7 @@ impl MlodApp {
         }
         let settings = self.session.detection;
         let Some(d) = self.loaded.detection.as_ref() else {
+            self.select_lines(&mut lines);
             self.scene.set_lines(lines);
             return;
         };
@@ -248,6 +234,31 @@ impl MlodApp {
                 lines.extend(box_lines(x.detection.box3d.corners(), c, true));
             }
         }
+        self.select_lines(&mut lines);
         self.scene.set_lines(lines);
+    }
+
+    /// The selected box drawn again in the selection colour, last, so that it stands out.
+    fn select_lines(&self, lines: &mut Vec<LineVertex>) {
+        let Some((layer, i)) = self.loaded.selected else {
+            return;
+        };
+        let d = self.loaded.detection.as_ref();
+        let b = match layer {
+            BoxLayer::Truth => self
+                .loaded
+                .frame
+                .as_ref()
+                .and_then(|f| f.boxes.get(i))
+                .map(|b| b.box3d),
+            BoxLayer::Proposal => d.and_then(|d| d.detections.get(i)).map(|x| x.box3d),
+            BoxLayer::Refined => d
+                .and_then(|d| d.refinement.as_ref())
+                .and_then(|r| r.refined.get(i))
+                .map(|x| x.detection.box3d),
+        };
+        if let Some(b) = b {
+            lines.extend(box_lines(b.corners(), SELECTED_COLOR, true));
+        }
     }
 }

@@ -101,12 +101,6 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             });
             if refined {
                 proposal_line(ui, &v.proposal_counts(min_score));
-                if let Some(k) = p.loaded.selected_refined {
-                    ui.label(
-                        RichText::new(format!("selected: refined box #{k} (click empty space to clear)"))
-                            .weak(),
-                    );
-                }
             }
             if p.shell.show_timings {
                 let steps = if refined {

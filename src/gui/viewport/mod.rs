@@ -78,7 +78,8 @@ pub const CONTROLS_HELP: &str = "\
 Drag: rotate (bird's eye: pan)
 Right-drag, Shift+drag or middle-drag: pan (bird's eye: right-drag rotates)
 Scroll or pinch: zoom
-Double-click a point: focus on it";
+Double-click a point: focus on it
+Click a box: select it (details in the right panel); F: focus it; Esc: clear";
 
 /// Errors of the viewport's library side (device creation, data handed over, read-back).
 #[derive(Debug, thiserror::Error)]
