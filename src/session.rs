@@ -63,6 +63,10 @@ pub struct Session {
     /// The selected box (the details panel's), kept across re-runs by the object it is on.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selection: Option<BoxSelection>,
+    /// Compare mode: this second case runs on the same perturbed frame and is drawn in the right
+    /// half of a split viewport with the same camera.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compare: Option<Case>,
 }
 
 /// The layer a selected box belongs to.
@@ -181,6 +185,7 @@ impl Session {
             detection: DetectionSettings::default(),
             oc: OcSession::default(),
             selection: None,
+            compare: None,
         }
     }
 

@@ -863,6 +863,38 @@ fn write_screenshot_sessions() {
     h.run_steps(3);
     assert!(h.state().session().oc.show_corrected);
     save(&h, "calibration_after");
+    // The paper's Fig. 6 on our data: Input Fusion (left) and MLOD-I (right) on the same frame at
+    // α = 0.04, one camera, run on load.
+    let mut s = session_at(0.04, ColorMode::Trace);
+    s.detection.case = Case::Input;
+    s.detection.auto_run = true;
+    s.compare = Some(Case::MlodI);
+    let mut h = harness(Some(s));
+    h.state_mut().set_preset(View::Chase);
+    h.run_steps(3);
+    assert!(h.state().compare_detection().is_some());
+    save(&h, "compare");
+    // A selected refined box (the one whose IoU gained most) with its active points, focused.
+    let mut s = mlod_session(0.04, ColorMode::Trace);
+    s.detection.auto_run = true;
+    s.detection.show_active = true;
+    let mut h = harness(Some(s));
+    h.run_steps(3);
+    let k = {
+        let r = h.state().detection().unwrap().0.refinement.as_ref().unwrap();
+        (0..r.refined.len())
+            .filter(|&k| matches!(r.outcomes[k], PredOutcome::TruePositive { .. }))
+            .max_by(|&a, &b| {
+                (r.iou_after[a] - r.iou_before[a]).total_cmp(&(r.iou_after[b] - r.iou_before[b]))
+            })
+            .unwrap()
+    };
+    h.state_mut()
+        .select_box(Some((mlod::session::BoxLayer::Refined, k)));
+    h.state_mut().set_preset(View::Chase);
+    h.state_mut().focus_selection();
+    h.run_steps(2);
+    save(&h, "selected");
 }
 
 #[test]
@@ -961,7 +993,9 @@ fn a_selected_box_shows_what_eval_per_box_reports_and_survives_alpha_and_session
         "IoU after {iou:.3} shown"
     );
     let active = d.active.as_ref().unwrap().total;
-    assert!(h.query_by_label_contains(&format!("active points {active}:")).is_some());
+    assert!(h
+        .query_by_label_contains(&format!("active points {active}:"))
+        .is_some());
 
     // F points the camera at it.
     h.key_press(egui::Key::F);
@@ -1024,4 +1058,116 @@ fn a_selected_box_shows_what_eval_per_box_reports_and_survives_alpha_and_session
         }
         other => panic!("truth details expected, got {other:?}"),
     }
+}
+
+/// TP, FP and misses of `drawn` on one sample as `mlod eval --per-box` matches them (3D IoU at
+/// `match_iou`, no range limit; ground truth of other categories left out).
+fn eval_counts(
+    token: &str,
+    drawn: Vec<Detection>,
+    match_iou: f64,
+    categories: &[String],
+) -> (usize, usize, usize) {
+    let dataset = Dataset::open(default_dataset()).unwrap();
+    let opts = EvalOptions {
+        per_box: Some(MatchRule {
+            iou_threshold: match_iou,
+            kind: IouKind::ThreeD,
+            max_range: f64::INFINITY,
+        }),
+        ..Default::default()
+    };
+    let report = evaluate_detections(&dataset, &HashMap::from([(token.to_string(), drawn)]), &opts).unwrap();
+    let s = report
+        .per_box
+        .unwrap()
+        .into_iter()
+        .find(|s| s.sample_token == token)
+        .unwrap();
+    let tp = s
+        .preds
+        .iter()
+        .filter(|p| matches!(p.outcome, PredOutcome::TruePositive { .. }))
+        .count();
+    let fp = s
+        .preds
+        .iter()
+        .filter(|p| matches!(p.outcome, PredOutcome::FalsePositive { .. }))
+        .count();
+    let missed = s
+        .gts
+        .iter()
+        .filter(|g| categories.contains(&g.category) && matches!(g.outcome, GtOutcome::Missed))
+        .count();
+    (tp, fp, missed)
+}
+
+#[test]
+fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
+    let models = mlod_models();
+    let mut s = mlod_session(0.04, ColorMode::Trace);
+    s.detection.case = Case::Input;
+    s.compare = Some(Case::MlodI);
+    let mut h = harness_with(Some(s), Some(models.clone()));
+    h.state_mut().set_preset(View::Bev);
+    h.run_steps(2);
+    h.get_by_label("Run (D)").click();
+    h.run_steps(4);
+    let settings = h.state().session().detection;
+    let token = h.state().frame().unwrap().sample_token.clone();
+    let (a, ca) = h.state().detection().expect("Input Fusion ran");
+    let (b, cb) = h.state().compare_detection().expect("MLOD-I ran beside it");
+    assert_eq!((a.case, b.case), (Case::Input, Case::MlodI));
+    // Both on the same perturbed frame: MLOD-I's proposals are Input Fusion's boxes.
+    assert_eq!(b.detections, a.detections);
+    let run = load_mlod(&models, Case::MlodI, Voting::Manifest)
+        .unwrap()
+        .run(h.state().frame().unwrap(), &h.state().session().fuse)
+        .unwrap();
+    assert_eq!(&run.refined, &b.refinement.as_ref().unwrap().refined);
+    let drawn = |d: Vec<Detection>| {
+        d.into_iter()
+            .filter(|x| x.score >= settings.min_score)
+            .collect::<Vec<_>>()
+    };
+    let a_eval = eval_counts(
+        &token,
+        drawn(a.detections.clone()),
+        settings.match_iou,
+        &a.categories,
+    );
+    let b_boxes: Vec<Detection> = run.refined.iter().map(|r| r.detection.clone()).collect();
+    let b_eval = eval_counts(&token, drawn(b_boxes), settings.match_iou, &b.categories);
+    assert_eq!((ca.true_positives, ca.false_positives, ca.missed), a_eval);
+    assert_eq!((cb.true_positives, cb.false_positives, cb.missed), b_eval);
+    // The difference, spelled out.
+    let diff = format!(
+        "MLOD-I vs Input Fusion: {:+} TP, {:+} FP, {:+} missed",
+        b_eval.0 as i64 - a_eval.0 as i64,
+        b_eval.1 as i64 - a_eval.1 as i64,
+        b_eval.2 as i64 - a_eval.2 as i64
+    );
+    assert!(h.query_by_label(&diff).is_some(), "{diff}");
+    // Two halves: the refined (red) boxes only in the right one, the same camera.
+    let img = h.render().unwrap();
+    let left = h.state().hover_state().0;
+    let right = egui::Rect::from_min_max(
+        egui::pos2(left.max.x + 3.0, left.min.y),
+        egui::pos2(2.0 * left.max.x - left.min.x + 3.0, left.max.y),
+    );
+    const RED: [[u8; 4]; 2] = [REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR];
+    let (red_a, red_b) = (count_pixels(&img, left, &RED), count_pixels(&img, right, &RED));
+    assert!(
+        red_b > 20 && red_b > 5 * red_a.max(1),
+        "red left {red_a}, right {red_b}"
+    );
+    assert!(
+        count_pixels(&img, right, &[GT_COLOR]) > 50,
+        "ground truth in the right half"
+    );
+    // The session keeps compare mode; switching it off joins the halves.
+    assert_eq!(h.state().current_session().compare, Some(Case::MlodI));
+    h.state_mut().set_compare(None);
+    h.run_steps(2);
+    assert!(h.state().hover_state().0.width() > 1.8 * left.width());
 }

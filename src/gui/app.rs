@@ -4,6 +4,7 @@
 //! drawing its layers and highlighting active points live in [`detection`].
 
 mod calibration;
+mod compare;
 mod detection;
 mod selection;
 
@@ -51,6 +52,8 @@ pub struct MlodApp {
     session: Session,
     view: Viewport,
     scene: SceneHandle,
+    /// The compare half's scene: the same points, the second case's boxes.
+    scene_b: SceneHandle,
     jobs: Jobs,
     loaded: Loaded,
     shell: Shell,
@@ -77,6 +80,8 @@ pub struct MlodApp {
     calib_seq: u64,
     /// An (OC) case asked to detect before a calibration existed: detect once it is back.
     detect_after_calibration: bool,
+    /// The compare case was asked to run again while it was running.
+    compare_again: bool,
 }
 
 impl MlodApp {
@@ -112,6 +117,7 @@ impl MlodApp {
         let mut app = Self {
             view,
             scene: SceneHandle::new(),
+            scene_b: SceneHandle::new(),
             jobs: Jobs::new(ctx, options.synchronous),
             scene_index: Vec::new(),
             wanted_token: session.sample_token.clone(),
@@ -141,6 +147,7 @@ impl MlodApp {
                 .unwrap_or_else(default_models_dir),
             calib_seq: 0,
             detect_after_calibration: false,
+            compare_again: false,
             session,
         };
         let path = app.session.dataset.clone();
@@ -256,6 +263,9 @@ impl MlodApp {
                             if self.loaded.detection.as_ref().is_some_and(|d| d.token != token) {
                                 self.loaded.detection = None;
                             }
+                            if self.loaded.detection_b.as_ref().is_some_and(|d| d.token != token) {
+                                self.loaded.detection_b = None;
+                            }
                             if self.session.sample_token.as_deref() != Some(token.as_str()) {
                                 // Another sample: other objects.
                                 self.session.selection = None;
@@ -272,9 +282,18 @@ impl MlodApp {
                     token,
                     generation,
                     case,
+                    compare: false,
                     result,
                     millis,
                 } => self.apply_detection(token, generation, case, result, millis, now),
+                JobResult::Detect {
+                    token,
+                    generation,
+                    case,
+                    compare: true,
+                    result,
+                    millis,
+                } => self.apply_compare(token, generation, case, result, millis, now),
                 JobResult::Calibrate {
                     id,
                     token,
@@ -384,6 +403,11 @@ impl MlodApp {
             .collect();
         self.scene_index = index;
         let colors = self.colors();
+        if self.session.compare.is_some() {
+            if let Err(e) = self.scene_b.set_points(positions.clone(), colors.clone()) {
+                eprintln!("mlod: {e}");
+            }
+        }
         if let Err(e) = self.scene.set_points(positions, colors) {
             eprintln!("mlod: {e}");
         }
@@ -395,7 +419,8 @@ impl MlodApp {
     fn recolor(&mut self) {
         self.needs_color = false;
         let colors = self.colors();
-        if self.scene.set_colors(colors).is_err() {
+        let b_ok = self.session.compare.is_none() || self.scene_b.set_colors(colors.clone()).is_ok();
+        if !b_ok || self.scene.set_colors(colors).is_err() {
             self.rebuild_scene();
         }
         self.update_histogram();
@@ -449,6 +474,7 @@ impl MlodApp {
         self.wanted_token = s.sample_token.clone();
         self.session = s;
         self.shell.auto_color = false;
+        self.loaded.detection_b = None;
         if same_dataset {
             match self.wanted_token.clone() {
                 Some(t)
@@ -546,6 +572,7 @@ impl MlodApp {
                 Action::StepSample(d) => self.step_sample(d),
                 Action::Refuse => self.mark_fuse(),
                 Action::ClearSelection => self.select_box(None),
+                Action::CompareChanged => self.compare_changed(),
                 Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),
@@ -582,8 +609,17 @@ impl MlodApp {
         Ok(cloud.len())
     }
 
-    /// The viewport, the box under the pointer and its tooltip.
+    /// The viewport (split in two in compare mode), the box under the pointer and its tooltip.
     fn central(&mut self, ui: &mut egui::Ui) {
+        if self.compare_case().is_some() {
+            self.central_split(ui);
+        } else {
+            self.central_main(ui);
+        }
+    }
+
+    /// The main view: the session's case, with hover, tooltips and selection.
+    fn central_main(&mut self, ui: &mut egui::Ui) {
         let input = OverlayInput {
             loaded: &self.loaded,
             session: &self.session,
@@ -630,7 +666,7 @@ impl MlodApp {
 
     /// Whether a load is still running (tests wait on this).
     pub fn is_busy(&self) -> bool {
-        self.jobs.running() > 0 || self.needs_fuse || self.loaded.detecting
+        self.jobs.running() > 0 || self.needs_fuse || self.loaded.detecting || self.loaded.detecting_b
     }
 
     fn handle_dropped_files(&mut self, ctx: &egui::Context) {

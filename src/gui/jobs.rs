@@ -61,6 +61,8 @@ pub struct DetectRequest {
     /// The already-loaded detector of this case, if any.
     pub cached: Option<LoadedDetector>,
     pub models: PathBuf,
+    /// For the compare half (the session's second case) rather than the main view.
+    pub compare: bool,
 }
 
 /// What a detector run gives back.
@@ -87,6 +89,8 @@ pub enum JobResult {
         token: String,
         generation: u64,
         case: Case,
+        /// The compare half's run.
+        compare: bool,
         result: Result<DetectOutput, String>,
         millis: f64,
     },
@@ -194,6 +198,7 @@ impl Jobs {
                 token,
                 generation: req.generation,
                 case: req.case,
+                compare: req.compare,
                 result,
                 millis: start.elapsed().as_secs_f64() * 1e3,
             }

@@ -68,6 +68,8 @@ pub enum Action {
     ClearSelection,
     /// Point the camera at the selected box (F).
     FocusSelection,
+    /// Compare mode was switched on or off, or its case changed.
+    CompareChanged,
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -125,6 +127,9 @@ pub struct Loaded {
     pub detection: Option<DetectionView>,
     /// A detector run is in flight.
     pub detecting: bool,
+    /// Compare mode: the second case's last detection (the right half) and its run in flight.
+    pub detection_b: Option<DetectionView>,
+    pub detecting_b: bool,
     /// The selected box on screen (its layer and index: into the frame's boxes, the detection's
     /// proposals or its refinement), resolved from the session's selection.
     pub selected: Option<(BoxLayer, usize)>,

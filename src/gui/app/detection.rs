@@ -53,7 +53,9 @@ impl MlodApp {
             case,
             cached: self.detectors.get(&case).cloned(),
             models: self.models_dir.clone(),
+            compare: false,
         });
+        self.run_compare();
     }
 
     /// A finished detector run: matched and drawn if its sample is still on screen; an error
@@ -119,6 +121,10 @@ impl MlodApp {
         if let Some(d) = self.loaded.detection.take() {
             let frame = self.loaded.frame.as_deref();
             self.loaded.detection = Some(d.rematched(frame, &self.session.detection));
+        }
+        if let Some(d) = self.loaded.detection_b.take() {
+            let frame = self.loaded.frame.as_deref();
+            self.loaded.detection_b = Some(d.rematched(frame, &self.session.detection));
         }
         self.resolve_selection();
     }
@@ -194,6 +200,17 @@ impl MlodApp {
     /// positives greyed) and the refined boxes (red) with a line from each proposal's centre to
     /// its refinement's, in that order (a later layer wins where lines overlap).
     pub(crate) fn rebuild_lines(&mut self) {
+        let mut lines = self.lines_for(self.loaded.detection.as_ref());
+        self.select_lines(&mut lines);
+        self.scene.set_lines(lines);
+        if self.session.compare.is_some() {
+            let lines = self.lines_for(self.loaded.detection_b.as_ref());
+            self.scene_b.set_lines(lines);
+        }
+    }
+
+    /// The grid, the ground truth and a detection's layers, as the session's settings draw them.
+    pub(super) fn lines_for(&self, d: Option<&DetectionView>) -> Vec<LineVertex> {
         let mut lines = grid_lines(80.0, 10.0, -1.8);
         if self.session.show_ground_truth {
             if let Some(f) = &self.loaded.frame {
@@ -203,10 +220,8 @@ impl MlodApp {
             }
         }
         let settings = self.session.detection;
-        let Some(d) = self.loaded.detection.as_ref() else {
-            self.select_lines(&mut lines);
-            self.scene.set_lines(lines);
-            return;
+        let Some(d) = d else {
+            return lines;
         };
         let color = |o: &PredOutcome, tp: [u8; 4], fp: [u8; 4]| match o {
             PredOutcome::FalsePositive { .. } => fp,
@@ -234,8 +249,7 @@ impl MlodApp {
                 lines.extend(box_lines(x.detection.box3d.corners(), c, true));
             }
         }
-        self.select_lines(&mut lines);
-        self.scene.set_lines(lines);
+        lines
     }
 
     /// The selected box drawn again in the selection colour, last, so that it stands out.

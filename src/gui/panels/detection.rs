@@ -36,6 +36,7 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             .on_hover_text("Run the detector on this sample with the current perturbation")
             .clicked();
     });
+    compare_row(p, ui);
     let d = &mut p.session.detection;
     let mlod = d.case.is_mlod();
     ui.checkbox(&mut d.auto_run, "run again on every change")
@@ -99,6 +100,7 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     .color(color32(GT_COLOR)),
                 );
             });
+            compare_lines(p, ui, c);
             if refined {
                 proposal_line(ui, &v.proposal_counts(min_score));
             }
@@ -139,5 +141,81 @@ fn proposal_line(ui: &mut egui::Ui, c: &DetectionCounts) {
             c.true_positives, c.false_positives, c.missed
         ))
         .weak(),
+    );
+}
+
+/// The cases compare mode offers against `a`: any other case but the (OC) ones.
+fn comparable(a: Case) -> impl Iterator<Item = Case> {
+    Case::WITH_OC.into_iter().filter(move |c| *c != a && !c.is_oc())
+}
+
+/// "compare with [case]": a split viewport with a second case on the same perturbed frame.
+fn compare_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    let a = p.session.detection.case;
+    let mut changed = false;
+    ui.horizontal(|ui| {
+        let mut on = p.session.compare.is_some();
+        let toggle = ui
+            .add_enabled(!a.is_oc(), egui::Checkbox::new(&mut on, "compare with"))
+            .on_hover_text("Split the viewport: a second case on the same perturbed frame, same camera")
+            .on_disabled_hover_text("The (OC) cases see the calibrated cloud: they cannot share a viewport");
+        if toggle.changed() {
+            // Stage 1 against its MLOD, or MLOD against its stage 1, by default.
+            let default = a
+                .refined()
+                .or_else(|| a.is_mlod().then(|| a.stage1()))
+                .unwrap_or(Case::Input);
+            p.session.compare = on
+                .then_some(default)
+                .filter(|b| *b != a)
+                .or(on.then_some(Case::Top));
+            changed = true;
+        }
+        if let Some(b) = &mut p.session.compare {
+            egui::ComboBox::new("mlod_compare_case", "case B")
+                .selected_text(b.paper_name())
+                .show_ui(ui, |ui| {
+                    for c in comparable(a) {
+                        changed |= ui.selectable_value(b, c, c.paper_name()).changed();
+                    }
+                });
+        }
+    });
+    if changed {
+        p.act(Action::CompareChanged);
+    }
+}
+
+/// In compare mode: the second case's counts and the difference, spelled out.
+fn compare_lines(p: &Panels<'_>, ui: &mut egui::Ui, a: DetectionCounts) {
+    let Some(b_case) = p.session.compare else { return };
+    let a_case = p.session.detection.case;
+    if b_case == a_case || b_case.is_oc() || a_case.is_oc() {
+        return;
+    }
+    let Some(v) = p.loaded.detection_b.as_ref() else {
+        ui.label(RichText::new(format!("{}: not run yet", b_case.paper_name())).weak());
+        return;
+    };
+    let b = v.counts(p.session.detection.min_score);
+    ui.label(format!(
+        "{}: {} TP, {} FP, {} of {} missed",
+        b_case.paper_name(),
+        b.true_positives,
+        b.false_positives,
+        b.missed,
+        b.ground_truth
+    ));
+    let d = |x: usize, y: usize| x as i64 - y as i64;
+    ui.label(
+        RichText::new(format!(
+            "{} vs {}: {:+} TP, {:+} FP, {:+} missed",
+            b_case.paper_name(),
+            a_case.paper_name(),
+            d(b.true_positives, a.true_positives),
+            d(b.false_positives, a.false_positives),
+            d(b.missed, a.missed)
+        ))
+        .strong(),
     );
 }
