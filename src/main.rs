@@ -32,6 +32,9 @@ enum Command {
     /// Render the viewport headlessly to a PNG (as File > Export viewport PNG does).
     #[command(after_help = cli::SCREENSHOT_EXAMPLES)]
     Screenshot(window::ScreenshotArgs),
+    /// Render "play α" headlessly as an animated GIF: the session's view from α = 0 to --alpha-to.
+    #[command(after_help = cli::CLIP_EXAMPLES)]
+    Clip(window::ClipArgs),
     /// Propagate the prior Θ(α) through an extrinsic to one point: Ξ = HΘHᵀ (paper eq. 5–8).
     #[command(after_help = cli::PROPAGATE_EXAMPLES)]
     Propagate(uncertainty::PropagateArgs),
@@ -108,6 +111,7 @@ fn run(cli: Cli) -> Result<()> {
         None => window::gui(window::GuiArgs::default()),
         Some(Command::Gui(a)) => window::gui(a),
         Some(Command::Screenshot(a)) => window::screenshot(a),
+        Some(Command::Clip(a)) => window::clip(a),
         Some(Command::Propagate(a)) => uncertainty::propagate(a),
         Some(Command::PlaneFit(a)) => uncertainty::plane_fit(a),
         Some(Command::Fuse(a)) => uncertainty::fuse_cmd(a),

@@ -1171,3 +1171,74 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
     h.run_steps(2);
     assert!(h.state().hover_state().0.width() > 1.8 * left.width());
 }
+
+#[test]
+fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
+    use mlod::gui::clip::{render_clip, write_gif, ClipOptions};
+    let mut h = harness(Some(session_at(0.0, ColorMode::Trace)));
+    h.state_mut().start_play(0.04, 5);
+    let mut alphas = Vec::new();
+    let mut images: Vec<Vec<u8>> = Vec::new();
+    for _ in 0..5 {
+        h.run_steps(1);
+        alphas.push(h.state().session().fuse.perturbation.alpha);
+        images.push(h.render().unwrap().into_raw());
+    }
+    assert!(!h.state().is_playing(), "stopped after the last frame");
+    let want: Vec<f64> = (0..5).map(|k| 0.04 * k as f64 / 4.0).collect();
+    assert_eq!(alphas, want);
+    for i in 1..images.len() {
+        assert!(
+            images[i] != images[i - 1],
+            "frames {} and {i} are identical",
+            i - 1
+        );
+    }
+
+    // The same headlessly, as `mlod clip` writes it.
+    let options = || AppOptions {
+        dataset: default_dataset(),
+        session: Some(session_at(0.0, ColorMode::Trace)),
+        synchronous: true,
+        measure_frames: None,
+        models: None,
+    };
+    let clip = ClipOptions {
+        alpha_to: 0.04,
+        frames: 3,
+        size: (96, 60),
+        fps: 5,
+    };
+    let frames = render_clip(options(), &clip, &|_, _| {}).unwrap();
+    assert_eq!(frames.len(), 3);
+    assert!(frames[0] != frames[1] && frames[1] != frames[2]);
+    let path = std::env::temp_dir().join(format!("mlod-clip-{}.gif", std::process::id()));
+    write_gif(&path, &frames, clip.fps).unwrap();
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut dec = opts.read_info(std::fs::File::open(&path).unwrap()).unwrap();
+    assert_eq!((dec.width(), dec.height()), (96, 60));
+    let mut n = 0;
+    while let Some(f) = dec.read_next_frame().unwrap() {
+        assert_eq!(f.delay, 20);
+        n += 1;
+    }
+    assert_eq!(n, 3);
+    let _ = std::fs::remove_file(&path);
+    // Absurd settings are refused, naming the setting.
+    for (bad, name) in [
+        (
+            ClipOptions {
+                alpha_to: f64::NAN,
+                ..clip
+            },
+            "--alpha-to",
+        ),
+        (ClipOptions { frames: 1, ..clip }, "--frames"),
+        (ClipOptions { fps: 0, ..clip }, "--fps"),
+        (ClipOptions { size: (8, 8), ..clip }, "size"),
+    ] {
+        let e = render_clip(options(), &bad, &|_, _| {}).unwrap_err().to_string();
+        assert!(e.contains(name), "{e}");
+    }
+}

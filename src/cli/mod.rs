@@ -55,6 +55,11 @@ pub const SCREENSHOT_EXAMPLES: &str = "\
 Examples:
   mlod screenshot --session screenshots/bev.session.json --out bev.png --size 1280x800";
 
+pub const CLIP_EXAMPLES: &str = "\
+Examples:
+  mlod clip --session screenshots/compare.session.json --alpha-to 0.1 --frames 40 --out clip.gif
+  mlod clip --alpha-to 0.04 --frames 20 --size 480x300 --fps 8 --out drift.gif   (first sight)";
+
 pub const PROPAGATE_EXAMPLES: &str = "\
 Examples:
   mlod propagate --example --linearization se3-left      the worked example of §III-B

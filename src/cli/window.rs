@@ -34,6 +34,70 @@ pub struct ScreenshotArgs {
     size: String,
 }
 
+#[derive(clap::Args)]
+pub struct ClipArgs {
+    /// The view, case and overlays to animate (default: the embedded sample data, first sight).
+    #[arg(long)]
+    session: Option<PathBuf>,
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// α of the last frame (the first is 0); the session's seed fixes the drift's direction.
+    #[arg(long, default_value_t = 0.1)]
+    alpha_to: f64,
+    /// Frames, first and last included.
+    #[arg(long, default_value_t = 40)]
+    frames: usize,
+    /// Frames per second.
+    #[arg(long, default_value_t = 10)]
+    fps: u32,
+    /// WIDTHxHEIGHT in pixels.
+    #[arg(long, default_value = "640x400")]
+    size: String,
+    /// The GIF to write (atomically).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// WIDTHxHEIGHT with sides in 16..=8192.
+fn parse_size(size: &str) -> Result<(u32, u32)> {
+    size.split_once('x')
+        .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)))
+        .filter(|(w, h)| (16..=8192).contains(w) && (16..=8192).contains(h))
+        .with_context(|| format!("--size must be WIDTHxHEIGHT with sides in 16..=8192, got '{size}'"))
+}
+
+#[cfg(feature = "gui")]
+pub fn clip(args: ClipArgs) -> Result<()> {
+    let clip = mlod::gui::clip::ClipOptions {
+        alpha_to: args.alpha_to,
+        frames: args.frames,
+        size: parse_size(&args.size)?,
+        fps: args.fps,
+    };
+    clip.validate()?;
+    let options = app_options(args.dataset, args.session)?;
+    let start = std::time::Instant::now();
+    let frames = mlod::gui::clip::render_clip(options, &clip, &|done, total| {
+        eprint!("\rframe {done}/{total}");
+    })?;
+    eprintln!();
+    mlod::gui::clip::write_gif(&args.out, &frames, clip.fps)?;
+    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    eprintln!(
+        "wrote {} ({} frames, {:.0} kB, {:.1} s)",
+        args.out.display(),
+        frames.len(),
+        bytes as f64 / 1e3,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+#[cfg(not(feature = "gui"))]
+pub fn clip(_: ClipArgs) -> Result<()> {
+    bail!("this build has no GUI (built without the `gui` feature)")
+}
+
 #[cfg(feature = "gui")]
 fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlod::gui::AppOptions> {
     let session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
@@ -62,12 +126,7 @@ pub fn gui(args: GuiArgs) -> Result<()> {
 
 #[cfg(feature = "gui")]
 pub fn screenshot(args: ScreenshotArgs) -> Result<()> {
-    let size = &args.size;
-    let (w, h) = size
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)))
-        .filter(|(w, h)| (16..=8192).contains(w) && (16..=8192).contains(h))
-        .with_context(|| format!("--size must be WIDTHxHEIGHT with sides in 16..=8192, got '{size}'"))?;
+    let (w, h) = parse_size(&args.size)?;
     let options = app_options(args.dataset, args.session)?;
     let img = mlod::gui::screenshot(options, (w, h))?;
     mlod::gui::write_png(&args.out, &img)?;

@@ -45,6 +45,8 @@ pub struct AppOptions {
 }
 
 const HISTOGRAM_BINS: usize = 64;
+/// Steps of "play α" in the window (and the default of an exported clip).
+const PLAY_FRAMES: usize = 40;
 const RECENT_KEY: &str = "mlod_recent_datasets";
 
 /// The application.
@@ -294,6 +296,19 @@ impl MlodApp {
                     result,
                     millis,
                 } => self.apply_compare(token, generation, case, result, millis, now),
+                JobResult::Clip { path, result, millis } => match result {
+                    Ok((n, bytes)) => self.toast(
+                        now,
+                        format!(
+                            "wrote {} ({n} frames, {:.0} kB, {:.1} s)",
+                            path.display(),
+                            bytes as f64 / 1e3,
+                            millis / 1e3
+                        ),
+                        false,
+                    ),
+                    Err(e) => self.toast(now, format!("cannot export the clip: {e}"), true),
+                },
                 JobResult::Calibrate {
                     id,
                     token,
@@ -573,6 +588,14 @@ impl MlodApp {
                 Action::Refuse => self.mark_fuse(),
                 Action::ClearSelection => self.select_box(None),
                 Action::CompareChanged => self.compare_changed(),
+                Action::TogglePlay(alpha_to) => {
+                    if self.shell.play.is_some() {
+                        self.shell.play = None;
+                    } else {
+                        self.start_play(alpha_to, PLAY_FRAMES);
+                    }
+                }
+                Action::ExportClip(path) => self.export_clip(path, now),
                 Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),
@@ -607,6 +630,60 @@ impl MlodApp {
         };
         crate::export::write(path, cloud, &opts).map_err(|e| e.to_string())?;
         Ok(cloud.len())
+    }
+
+    /// Starts "play α": α from 0 to `alpha_to` in `frames` steps.
+    pub fn start_play(&mut self, alpha_to: f64, frames: usize) {
+        if alpha_to.is_finite() && alpha_to > 0.0 && frames >= 2 {
+            self.shell.play = Some(super::state::Play {
+                alpha_to,
+                frames,
+                next: 0,
+            });
+        }
+    }
+
+    /// Whether "play α" is running.
+    pub fn is_playing(&self) -> bool {
+        self.shell.play.is_some()
+    }
+
+    /// One step of "play α" once the previous one is on screen; true if it stepped.
+    fn advance_play(&mut self) -> bool {
+        let Some(mut play) = self.shell.play else {
+            return false;
+        };
+        if self.is_busy() || self.is_calibrating() {
+            return false;
+        }
+        self.session.fuse.perturbation.alpha = play.alpha(play.next);
+        self.mark_fuse();
+        play.next += 1;
+        self.shell.play = (play.next < play.frames).then_some(play);
+        true
+    }
+
+    /// Renders "play α" of the current view to a GIF in the background.
+    fn export_clip(&mut self, path: PathBuf, now: f64) {
+        let alpha = self.session.fuse.perturbation.alpha;
+        let clip = super::clip::ClipOptions {
+            alpha_to: if alpha > 0.0 { alpha } else { 0.1 },
+            frames: PLAY_FRAMES,
+            ..Default::default()
+        };
+        let options = AppOptions {
+            dataset: self.session.dataset.clone(),
+            session: Some(self.current_session()),
+            synchronous: true,
+            measure_frames: None,
+            models: Some(self.models_dir.clone()),
+        };
+        self.toast(
+            now,
+            format!("rendering {} frames to {}…", clip.frames, path.display()),
+            false,
+        );
+        self.jobs.clip(options, clip, path);
     }
 
     /// The viewport (split in two in compare mode), the box under the pointer and its tooltip.
@@ -751,6 +828,9 @@ impl eframe::App for MlodApp {
         let ctx = ui.ctx().clone();
         let now = ctx.input(|i| i.time);
         self.process_jobs(now);
+        if self.advance_play() {
+            ctx.request_repaint();
+        }
         self.handle_dropped_files(&ctx);
         let mut p = self.panels();
         panels::keys(&mut p, &ctx);

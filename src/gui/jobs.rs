@@ -94,6 +94,12 @@ pub enum JobResult {
         result: Result<DetectOutput, String>,
         millis: f64,
     },
+    /// An exported clip: frames written, bytes.
+    Clip {
+        path: PathBuf,
+        result: Result<(usize, u64), String>,
+        millis: f64,
+    },
     Calibrate {
         /// The request's id (a cancelled or superseded one is dropped by the app).
         id: u64,
@@ -141,6 +147,25 @@ impl Jobs {
             let _ = tx.send(work());
             if let Some(ctx) = ctx {
                 ctx.request_repaint();
+            }
+        });
+    }
+
+    /// Renders "play α" of `options` headlessly and writes it as a GIF to `path`.
+    pub fn clip(&mut self, options: super::AppOptions, clip: super::clip::ClipOptions, path: PathBuf) {
+        self.spawn(move || {
+            let start = std::time::Instant::now();
+            let result = super::clip::render_clip(options, &clip, &|_, _| {})
+                .and_then(|frames| {
+                    super::clip::write_gif(&path, &frames, clip.fps)?;
+                    Ok(frames.len())
+                })
+                .map(|n| (n, std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0)))
+                .map_err(|e| e.to_string());
+            JobResult::Clip {
+                path,
+                result,
+                millis: start.elapsed().as_secs_f64() * 1e3,
             }
         });
     }

@@ -5,6 +5,7 @@
 //! panels.
 
 pub mod app;
+pub mod clip;
 mod jobs;
 mod overlay;
 mod panels;

@@ -307,6 +307,41 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             }
         }
     });
+    let alpha_now = fp.perturbation.alpha;
+    let mut toggle = None;
+    let mut clip = None;
+    ui.horizontal(|ui| {
+        let to = if alpha_now > 0.0 { alpha_now } else { 0.1 };
+        let play = if p.shell.play.is_some() {
+            "stop playing".to_string()
+        } else {
+            format!("play α 0 to {to}")
+        };
+        if ui
+            .button(play)
+            .on_hover_text(
+                "Animate α from 0 in 40 steps (same seed: the same drift, scaled), re-fusing, \
+                 recolouring and, with \"run again on every change\", re-detecting",
+            )
+            .clicked()
+        {
+            toggle = Some(to);
+        }
+        if ui
+            .button("export clip…")
+            .on_hover_text("Write the same animation of this view as an animated GIF (like `mlod clip`)")
+            .clicked()
+        {
+            clip = save_dialog("Export clip", ("GIF", &["gif"]), "clip.gif");
+        }
+    });
+    if let Some(to) = toggle {
+        p.act(Action::TogglePlay(to));
+    }
+    if let Some(path) = clip {
+        p.act(Action::ExportClip(path));
+    }
+    let fp = &mut p.session.fuse;
     ui.horizontal(|ui| {
         let label = ui.label("seed");
         changed |= ui

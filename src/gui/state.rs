@@ -70,6 +70,10 @@ pub enum Action {
     FocusSelection,
     /// Compare mode was switched on or off, or its case changed.
     CompareChanged,
+    /// Start "play α" (to the given α), or stop it.
+    TogglePlay(f64),
+    /// Write "play α" of the current view as an animated GIF (in the background).
+    ExportClip(PathBuf),
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -88,6 +92,8 @@ pub struct Shell {
     pub show_help: bool,
     /// Wall-clock timings in the UI (off for deterministic snapshots).
     pub show_timings: bool,
+    /// "Play α" in progress.
+    pub play: Option<Play>,
     /// First sight: the window opened without a session shows the source-LiDAR colours at α = 0
     /// and switches to tr(Ξ) the first time α leaves 0, unless the user chose a colouring first.
     pub auto_color: bool,
@@ -108,6 +114,23 @@ impl Shell {
         self.recent.retain(|p| p != path);
         self.recent.insert(0, path.clone());
         self.recent.truncate(8);
+    }
+}
+
+/// "Play α": α steps from 0 to `alpha_to` in `frames` equal steps (the seed, hence the drift's
+/// direction, fixed), one step each time the previous one is fused (and detected, with auto-run).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Play {
+    pub alpha_to: f64,
+    pub frames: usize,
+    /// The next frame's index.
+    pub next: usize,
+}
+
+impl Play {
+    /// α of frame `k`.
+    pub fn alpha(&self, k: usize) -> f64 {
+        self.alpha_to * k as f64 / (self.frames.max(2) - 1) as f64
     }
 }
 
