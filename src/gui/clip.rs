@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use super::{viewport, AppOptions, GuiError, MlodApp};
+use super::{viewport, AppOptions, GuiError};
 
 /// What a clip covers.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,19 +66,7 @@ pub fn render_clip(
     progress: &dyn Fn(usize, usize),
 ) -> Result<Vec<image::RgbaImage>, GuiError> {
     clip.validate()?;
-    let mut app = MlodApp::headless(
-        AppOptions {
-            synchronous: true,
-            ..options
-        },
-        None,
-    );
-    if let Some(t) = app.first_error() {
-        return Err(GuiError::Load(t.to_string()));
-    }
-    if app.fused().is_none() {
-        return Err(GuiError::Load("no sample could be loaded".into()));
-    }
+    let mut app = super::headless_loaded(options)?;
     let gpu = viewport::HeadlessGpu::new()?;
     let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
     let mut frames = Vec::with_capacity(clip.frames);

@@ -85,6 +85,16 @@ pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
 
 /// Renders the viewport of a dataset/session headlessly (what File > Export viewport PNG writes).
 pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaImage, GuiError> {
+    let app = headless_loaded(options)?;
+    let gpu = viewport::HeadlessGpu::new()?;
+    let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
+    let (view, scene) = app.viewport();
+    Ok(renderer.render(scene, view, size)?)
+}
+
+/// The app without a window, its dataset and sample loaded (jobs run inline); the first error
+/// toast, or no sample at all, is an error.
+pub(crate) fn headless_loaded(options: AppOptions) -> Result<MlodApp, GuiError> {
     let app = MlodApp::headless(
         AppOptions {
             synchronous: true,
@@ -98,8 +108,5 @@ pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaIm
     if app.fused().is_none() {
         return Err(GuiError::Load("no sample could be loaded".into()));
     }
-    let gpu = viewport::HeadlessGpu::new()?;
-    let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
-    let (view, scene) = app.viewport();
-    Ok(renderer.render(scene, view, size)?)
+    Ok(app)
 }
