@@ -67,6 +67,9 @@ pub struct Session {
     /// half of a split viewport with the same camera.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub compare: Option<Case>,
+    /// The sweep folder whose AP-against-α plot is open (the sweep window).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sweep: Option<PathBuf>,
 }
 
 /// The layer a selected box belongs to.
@@ -186,6 +189,7 @@ impl Session {
             oc: OcSession::default(),
             selection: None,
             compare: None,
+            sweep: None,
         }
     }
 

@@ -541,6 +541,61 @@ fn summarize(cfg: &SweepConfig, rows: &[UnitResult]) -> Summary {
     out
 }
 
+/// Per case (paper name): (α, mean, std) of the moderate AP where it has finished trials.
+fn curves_of(cfg: &SweepConfig, summary: &Summary) -> Vec<crate::plot::Curve> {
+    cfg.cases
+        .iter()
+        .enumerate()
+        .map(|(ci, case)| {
+            let pts = cfg
+                .alphas
+                .iter()
+                .enumerate()
+                .filter_map(|(ai, a)| summary.get(&(ci, ai)).and_then(|c| c[1]).map(|(m, s)| (*a, m, s)))
+                .collect();
+            (case.paper_name().to_string(), pts)
+        })
+        .collect()
+}
+
+/// What a sweep folder holds so far (a finished, running or partial sweep): its configuration,
+/// the finished units and the AP-against-α curves over them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepProgress {
+    pub config: SweepConfig,
+    /// The finished units, in unit order.
+    pub rows: Vec<UnitResult>,
+    /// Units of the whole sweep.
+    pub total: usize,
+    /// Per case: (α, mean, std) of car moderate AP_3D@0.7 over its finished trials.
+    pub curves: Vec<crate::plot::Curve>,
+}
+
+impl SweepProgress {
+    /// How many trials a (case, α) point averages.
+    pub fn trials(&self, case: Case, alpha: f64) -> usize {
+        self.rows
+            .iter()
+            .filter(|r| r.case == case && r.alpha == alpha && r.moderate.is_some())
+            .count()
+    }
+}
+
+/// Reads a sweep folder (what `mlod sweep --out` writes) as far as it has come.
+pub fn progress(dir: &Path) -> Result<SweepProgress, SweepError> {
+    let config = read_config(dir)?;
+    config.validate()?;
+    let units = config.units();
+    let rows: Vec<UnitResult> = units.iter().filter_map(|u| read_unit(dir, u)).collect();
+    let curves = curves_of(&config, &summarize(&config, &rows));
+    Ok(SweepProgress {
+        total: units.len(),
+        rows,
+        curves,
+        config,
+    })
+}
+
 /// Writes `table.md`, `results.json`, `results.csv` and `ap_vs_alpha.png` of a complete sweep.
 pub fn write_outputs(dir: &Path, cfg: &SweepConfig, rows: &[UnitResult]) -> Result<(), SweepError> {
     let summary = summarize(cfg, rows);
@@ -580,20 +635,7 @@ pub fn write_outputs(dir: &Path, cfg: &SweepConfig, rows: &[UnitResult]) -> Resu
         ));
     }
     write_atomic(&dir.join("results.csv"), csv.as_bytes())?;
-    let curves: Vec<crate::plot::Curve> = cfg
-        .cases
-        .iter()
-        .enumerate()
-        .map(|(ci, case)| {
-            let pts = cfg
-                .alphas
-                .iter()
-                .enumerate()
-                .filter_map(|(ai, a)| summary[&(ci, ai)][1].map(|(m, s)| (*a, m, s)))
-                .collect();
-            (case.paper_name().to_string(), pts)
-        })
-        .collect();
+    let curves = curves_of(cfg, &summary);
     crate::plot::curves_with_error_bars_png(
         &curves,
         "Car moderate AP_3D@0.7 under extrinsic perturbation",

@@ -895,6 +895,16 @@ fn write_screenshot_sessions() {
     h.state_mut().focus_selection();
     h.run_steps(2);
     save(&h, "selected");
+    // The sweep window on the committed Table II run, over the first-sight view.
+    let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
+    h.state_mut()
+        .open_sweep(&dir.join("../docs/sweeps/table2"))
+        .unwrap();
+    h.run_steps(2);
+    let mut s = h.state().current_session();
+    s.dataset = "sample_data".into();
+    s.sweep = Some("docs/sweeps/table2".into());
+    s.save(&dir.join("sweep.session.json")).unwrap();
 }
 
 #[test]
@@ -1241,4 +1251,36 @@ fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
         let e = render_clip(options(), &bad, &|_, _| {}).unwrap_err().to_string();
         assert!(e.contains(name), "{e}");
     }
+}
+
+#[test]
+fn a_sweep_folder_opens_as_its_ap_against_alpha_plot_and_the_session_keeps_it() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/table2");
+    let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
+    let before = h.render().unwrap();
+    h.state_mut().open_sweep(&dir).unwrap();
+    h.run_steps(3);
+    let want = mlod::sweep::progress(&dir).unwrap();
+    let view = h.state().open_sweep_view().expect("the sweep window is open");
+    assert_eq!(view.progress, want);
+    assert!(!want.rows.is_empty() && want.curves.iter().any(|c| !c.1.is_empty()));
+    assert!(h.query_by_label_contains("units finished").is_some());
+    assert!(h.query_by_label("— MLOD-I").is_some(), "the legend");
+    assert!(
+        h.render().unwrap().as_raw() != before.as_raw(),
+        "the window is drawn"
+    );
+    // Kept in the session: a saved session reopens with the plot.
+    let s = h.state().current_session();
+    assert_eq!(s.sweep.as_deref(), Some(dir.as_path()));
+    let b = harness(Some(s));
+    assert_eq!(b.state().open_sweep_view().map(|v| &v.progress), Some(&want));
+    // Not a sweep folder: an error naming its config.json; the open plot stays.
+    let e = h
+        .state_mut()
+        .open_sweep(Path::new("/nonexistent/sweep"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("config.json"), "{e}");
+    assert_eq!(h.state().open_sweep_view().map(|v| &v.progress), Some(&want));
 }

@@ -155,7 +155,19 @@ impl MlodApp {
         let path = app.session.dataset.clone();
         app.open_dataset(path);
         app.process_jobs(0.0);
+        app.reopen_sweep(0.0);
         app
+    }
+
+    /// Opens the session's sweep folder, if any (an error is a toast and closes it).
+    fn reopen_sweep(&mut self, now: f64) {
+        self.shell.sweep = None;
+        if let Some(dir) = self.session.sweep.clone() {
+            if let Err(e) = self.open_sweep(&dir) {
+                self.session.sweep = None;
+                self.toast(now, format!("cannot open the sweep: {e}"), true);
+            }
+        }
     }
 
     /// Starts opening a dataset; the current one stays until the new one has loaded.
@@ -490,6 +502,7 @@ impl MlodApp {
         self.session = s;
         self.shell.auto_color = false;
         self.loaded.detection_b = None;
+        self.reopen_sweep(0.0);
         if same_dataset {
             match self.wanted_token.clone() {
                 Some(t)
@@ -596,6 +609,11 @@ impl MlodApp {
                     }
                 }
                 Action::ExportClip(path) => self.export_clip(path, now),
+                Action::OpenSweep(dir) => {
+                    if let Err(e) = self.open_sweep(&dir) {
+                        self.toast(now, format!("cannot open the sweep: {e}"), true);
+                    }
+                }
                 Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),
@@ -630,6 +648,23 @@ impl MlodApp {
         };
         crate::export::write(path, cloud, &opts).map_err(|e| e.to_string())?;
         Ok(cloud.len())
+    }
+
+    /// Reads a sweep folder (finished or not) and opens the sweep window on it; an error keeps
+    /// the window as it was.
+    pub fn open_sweep(&mut self, dir: &std::path::Path) -> Result<(), crate::sweep::SweepError> {
+        let progress = crate::sweep::progress(dir)?;
+        self.session.sweep = Some(dir.to_path_buf());
+        self.shell.sweep = Some(super::state::SweepView {
+            dir: dir.to_path_buf(),
+            progress,
+        });
+        Ok(())
+    }
+
+    /// The sweep the sweep window shows.
+    pub fn open_sweep_view(&self) -> Option<&super::state::SweepView> {
+        self.shell.sweep.as_ref()
     }
 
     /// Starts "play α": α from 0 to `alpha_to` in `frames` steps.
@@ -856,6 +891,7 @@ impl eframe::App for MlodApp {
             .show(ui, |ui| self.central(ui));
         let mut p = self.panels();
         panels::help_overlay(&mut p, &ctx);
+        panels::sweep_window(&mut p, &ctx);
         panels::toasts(&mut p, &ctx, now);
         if self.jobs.running() > 0 {
             ctx.request_repaint_after(std::time::Duration::from_millis(50));

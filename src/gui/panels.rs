@@ -11,6 +11,9 @@ use egui::{Color32, RichText, Sense, Stroke};
 mod calibration;
 mod detection;
 mod selection;
+mod sweep;
+
+pub use sweep::sweep_window;
 
 use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
 use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
@@ -127,6 +130,19 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     }
                 });
                 ui.separator();
+                if ui
+                    .button("Open sweep results…")
+                    .on_hover_text("A folder written by `mlod sweep --out`: its AP-against-α plot")
+                    .clicked()
+                {
+                    ui.close();
+                    if let Some(dir) = rfd::FileDialog::new()
+                        .set_title("Open a sweep folder")
+                        .pick_folder()
+                    {
+                        p.act(Action::OpenSweep(dir));
+                    }
+                }
                 if ui.button("Save session…").clicked() {
                     if let Some(path) = save_dialog("Save session", ("session", &["json"]), "session.json") {
                         p.act(Action::SaveSession(path));

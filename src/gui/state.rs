@@ -74,6 +74,8 @@ pub enum Action {
     TogglePlay(f64),
     /// Write "play α" of the current view as an animated GIF (in the background).
     ExportClip(PathBuf),
+    /// Read a sweep folder and show its AP-against-α plot.
+    OpenSweep(PathBuf),
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -94,6 +96,8 @@ pub struct Shell {
     pub show_timings: bool,
     /// "Play α" in progress.
     pub play: Option<Play>,
+    /// The open sweep folder (the sweep window).
+    pub sweep: Option<SweepView>,
     /// First sight: the window opened without a session shows the source-LiDAR colours at α = 0
     /// and switches to tr(Ξ) the first time α leaves 0, unless the user chose a colouring first.
     pub auto_color: bool,
@@ -115,6 +119,13 @@ impl Shell {
         self.recent.insert(0, path.clone());
         self.recent.truncate(8);
     }
+}
+
+/// A sweep folder read for the sweep window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepView {
+    pub dir: PathBuf,
+    pub progress: crate::sweep::SweepProgress,
 }
 
 /// "Play α": α steps from 0 to `alpha_to` in `frames` equal steps (the seed, hence the drift's

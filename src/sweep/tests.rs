@@ -118,6 +118,38 @@ fn killed_and_resumed_on_two_threads_equals_one_uninterrupted_run() {
 }
 
 #[test]
+fn progress_reads_a_partial_and_a_finished_sweep() {
+    let d = tmp("progress");
+    assert_eq!(sweep(&d, 2, Shard::default(), Some(2)), 2);
+    let p = progress(&d).unwrap();
+    assert_eq!((p.rows.len(), p.total), (2, config().units().len()));
+    assert_eq!(p.config, config());
+    let points: usize = p.curves.iter().map(|c| c.1.len()).sum();
+    assert!((1..=2).contains(&points), "{points} points from 2 units");
+    // Finished: the curves are the plot's, one point per case at α = 0.1, averaging its trials.
+    let full = progress(reference()).unwrap();
+    assert_eq!(full.rows.len(), full.total);
+    assert!(full.curves.iter().all(|c| c.1.len() == 1 && c.1[0].0 == 0.1));
+    assert_eq!(full.trials(Case::Input, 0.1), 2);
+    assert_eq!(full.trials(Case::Top, 0.1), 1, "LiDAR-Top needs one trial");
+    let m = |c: Case| {
+        full.rows
+            .iter()
+            .filter(|r| r.case == c)
+            .filter_map(|r| r.moderate)
+            .collect::<Vec<_>>()
+    };
+    let input = m(Case::Input);
+    let want = (input[0] + input[1]) / 2.0;
+    let got = full.curves.iter().find(|c| c.0 == "Input Fusion").unwrap().1[0].1;
+    assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    // Not a sweep folder: an error naming the file.
+    let e = progress(&d.join("nothing")).unwrap_err().to_string();
+    assert!(e.contains("config.json"), "{e}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
 fn two_shards_merged_equal_one_run_and_a_missing_shard_is_refused() {
     let (s0, s1, m) = (tmp("shard0"), tmp("shard1"), tmp("merged"));
     sweep(&s0, 2, Shard { index: 0, count: 2 }, None);
