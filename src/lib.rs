@@ -10,6 +10,7 @@ pub mod color;
 pub mod detect;
 pub mod eval;
 pub mod export;
+pub mod failures;
 pub mod geometry;
 pub mod inspect;
 pub mod io;

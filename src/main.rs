@@ -7,7 +7,9 @@ use clap::{Parser, Subcommand};
 
 mod cli;
 
-use cli::{analyze, calibrate, data, detect, eval, export, sweep, table1, train, uncertainty, window};
+use cli::{
+    analyze, calibrate, data, detect, eval, export, failures, sweep, table1, train, uncertainty, window,
+};
 
 #[derive(Parser)]
 #[command(
@@ -32,6 +34,9 @@ enum Command {
     /// Render the viewport headlessly to a PNG (as File > Export viewport PNG does).
     #[command(after_help = cli::SCREENSHOT_EXAMPLES)]
     Screenshot(window::ScreenshotArgs),
+    /// A case's worst samples and boxes at a perturbation (the window's failure browser).
+    #[command(after_help = cli::FAILURES_EXAMPLES)]
+    Failures(failures::FailuresArgs),
     /// Render "play α" headlessly as an animated GIF: the session's view from α = 0 to --alpha-to.
     #[command(after_help = cli::CLIP_EXAMPLES)]
     Clip(window::ClipArgs),
@@ -112,6 +117,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Gui(a)) => window::gui(a),
         Some(Command::Screenshot(a)) => window::screenshot(a),
         Some(Command::Clip(a)) => window::clip(a),
+        Some(Command::Failures(a)) => failures::run(a),
         Some(Command::Propagate(a)) => uncertainty::propagate(a),
         Some(Command::PlaneFit(a)) => uncertainty::plane_fit(a),
         Some(Command::Fuse(a)) => uncertainty::fuse_cmd(a),

@@ -1284,3 +1284,69 @@ fn a_sweep_folder_opens_as_its_ap_against_alpha_plot_and_the_session_keeps_it() 
     assert!(e.contains("config.json"), "{e}");
     assert_eq!(h.state().open_sweep_view().map(|v| &v.progress), Some(&want));
 }
+
+#[test]
+fn the_failure_browser_lists_the_scenes_worst_samples_as_the_cli_does_and_goes_to_a_box() {
+    use mlod::failures::FailureKind;
+    use mlod::session::BoxLayer;
+    let mut s = session_at(0.1, ColorMode::Trace);
+    s.detection.case = Case::Input;
+    s.fuse.perturbation.seed = 2;
+    let mut h = harness(Some(s));
+    h.get_by_label("failure cases…").click();
+    h.run_steps(2);
+    h.get_by_label_contains("scan Input Fusion at α = 0.1").click();
+    h.run_steps(3);
+    let (case, alpha, seed, rows) = h
+        .state()
+        .failure_browser()
+        .and_then(|b| b.result.clone())
+        .expect("a finished scan");
+    assert_eq!((case, alpha, seed), (Case::Input, 0.1, 2));
+    // The CLI on the same scene and perturbation lists the same samples, worst first.
+    let scene = Dataset::open(default_dataset()).unwrap().samples()[0]
+        .scene_token
+        .clone();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mlod"))
+        .args(["failures", "--dataset"])
+        .arg(default_dataset())
+        .args([
+            "--case", "input", "--alpha", "0.1", "--seed", "2", "--scene", &scene, "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let cli: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(cli["samples"], serde_json::to_value(&rows).unwrap());
+    assert!(rows.iter().any(|r| r.missed > 0), "α = 0.1 misses something");
+    assert!(
+        h.query_by_label_contains("missed (").is_some(),
+        "the summary line"
+    );
+    // A missed car on another sample: loaded with the same perturbation, selected and focused.
+    let here = h.state().frame().unwrap().sample_token.clone();
+    let miss = rows
+        .iter()
+        .flat_map(|r| &r.boxes)
+        .find(|b| b.kind == FailureKind::Missed && b.sample_token != here)
+        .expect("a miss on another sample")
+        .clone();
+    h.state_mut().go_to_failure(&miss);
+    h.run_steps(4);
+    assert_eq!(h.state().frame().unwrap().sample_token, miss.sample_token);
+    assert_eq!(h.state().session().fuse.perturbation.alpha, 0.1);
+    let (layer, j) = h.state().selected_box().expect("the missed box is selected");
+    assert_eq!(layer, BoxLayer::Truth);
+    assert_eq!(
+        Some(&h.state().frame().unwrap().boxes[j].annotation_token),
+        miss.annotation.as_ref()
+    );
+    let t = h.state().viewport().0.camera.target;
+    assert!((t[0] as f64 - miss.center[0]).abs() < 1e-3 && (t[1] as f64 - miss.center[1]).abs() < 1e-3);
+    let (v, _) = h.state().detection().expect("the case ran on the new sample");
+    assert_eq!(v.token, miss.sample_token);
+    assert!(
+        matches!(v.final_gt_outcomes()[j], GtOutcome::Missed),
+        "missed on screen too"
+    );
+}

@@ -8,6 +8,7 @@ pub mod data;
 pub mod detect;
 pub mod eval;
 pub mod export;
+pub mod failures;
 pub mod refine;
 pub mod sweep;
 pub mod table1;
@@ -54,6 +55,11 @@ Examples:
 pub const SCREENSHOT_EXAMPLES: &str = "\
 Examples:
   mlod screenshot --session screenshots/bev.session.json --out bev.png --size 1280x800";
+
+pub const FAILURES_EXAMPLES: &str = "\
+Examples:
+  mlod failures --dataset sample_data --case mlod-i --alpha 0.04               worst samples first
+  mlod failures --dataset data/test --case input --alpha 0.1 --samples 100 --json --out f.json";
 
 pub const CLIP_EXAMPLES: &str = "\
 Examples:

@@ -6,6 +6,7 @@
 mod calibration;
 mod compare;
 mod detection;
+mod failures;
 mod selection;
 
 use std::collections::BTreeMap;
@@ -84,6 +85,14 @@ pub struct MlodApp {
     detect_after_calibration: bool,
     /// The compare case was asked to run again while it was running.
     compare_again: bool,
+    /// Id of the last failure scan asked for.
+    scan_seq: u64,
+    /// A selection to make once the sample being loaded is on screen (the failure browser's).
+    pending_selection: Option<crate::session::BoxSelection>,
+    /// Run the detector once the sample being loaded is fused.
+    detect_on_load: bool,
+    /// Focus the selection as soon as it is found.
+    focus_pending: bool,
 }
 
 impl MlodApp {
@@ -150,6 +159,10 @@ impl MlodApp {
             calib_seq: 0,
             detect_after_calibration: false,
             compare_again: false,
+            scan_seq: 0,
+            pending_selection: None,
+            detect_on_load: false,
+            focus_pending: false,
             session,
         };
         let path = app.session.dataset.clone();
@@ -284,6 +297,9 @@ impl MlodApp {
                                 // Another sample: other objects.
                                 self.session.selection = None;
                             }
+                            if let Some(p) = self.pending_selection.take() {
+                                self.session.selection = Some(p);
+                            }
                             self.session.sample_token = Some(token);
                             self.loaded.frame = Some(frame);
                             self.loaded.frame_ms = millis;
@@ -308,6 +324,7 @@ impl MlodApp {
                     result,
                     millis,
                 } => self.apply_compare(token, generation, case, result, millis, now),
+                JobResult::Scan { id, result, millis } => self.apply_scan(id, result, millis, now),
                 JobResult::Clip { path, result, millis } => match result {
                     Ok((n, bytes)) => self.toast(
                         now,
@@ -398,7 +415,7 @@ impl MlodApp {
                 }
                 self.rebuild_scene();
                 self.resolve_selection();
-                if auto_run {
+                if auto_run || std::mem::take(&mut self.detect_on_load) {
                     self.run_detector();
                 }
                 self.loaded.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -609,6 +626,10 @@ impl MlodApp {
                     }
                 }
                 Action::ExportClip(path) => self.export_clip(path, now),
+                Action::ToggleFailures => self.toggle_failures(),
+                Action::ScanFailures => self.scan_failures(now),
+                Action::CancelScan => self.cancel_scan(),
+                Action::GoToFailure(f) => self.go_to_failure(&f),
                 Action::OpenSweep(dir) => {
                     if let Err(e) = self.open_sweep(&dir) {
                         self.toast(now, format!("cannot open the sweep: {e}"), true);
@@ -892,7 +913,10 @@ impl eframe::App for MlodApp {
         let mut p = self.panels();
         panels::help_overlay(&mut p, &ctx);
         panels::sweep_window(&mut p, &ctx);
+        panels::failure_window(&mut p, &ctx);
         panels::toasts(&mut p, &ctx, now);
+        let actions = std::mem::take(&mut p.actions);
+        self.apply_actions(actions, now, Some(frame));
         if self.jobs.running() > 0 {
             ctx.request_repaint_after(std::time::Duration::from_millis(50));
         }

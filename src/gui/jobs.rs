@@ -94,6 +94,12 @@ pub enum JobResult {
         result: Result<DetectOutput, String>,
         millis: f64,
     },
+    /// A failure scan (its id: a cancelled or superseded one is dropped).
+    Scan {
+        id: u64,
+        result: Result<Vec<crate::failures::SampleFailures>, String>,
+        millis: f64,
+    },
     /// An exported clip: frames written, bytes.
     Clip {
         path: PathBuf,
@@ -147,6 +153,34 @@ impl Jobs {
             let _ = tx.send(work());
             if let Some(ctx) = ctx {
                 ctx.request_repaint();
+            }
+        });
+    }
+
+    /// A failure scan over `cfg.tokens`; `done` counts finished samples, `cancel` stops it.
+    pub fn scan(
+        &mut self,
+        id: u64,
+        dataset: Arc<Dataset>,
+        models: PathBuf,
+        cfg: crate::failures::ScanConfig,
+        done: Arc<std::sync::atomic::AtomicUsize>,
+        cancel: Arc<std::sync::atomic::AtomicBool>,
+    ) {
+        let repaint = self.repaint.clone();
+        self.spawn(move || {
+            let start = std::time::Instant::now();
+            let result = crate::failures::scan(&dataset, &models, &cfg, &cancel, &|d, _| {
+                done.store(d, std::sync::atomic::Ordering::Relaxed);
+                if let Some(ctx) = &repaint {
+                    ctx.request_repaint();
+                }
+            })
+            .map_err(|e| e.to_string());
+            JobResult::Scan {
+                id,
+                result,
+                millis: start.elapsed().as_secs_f64() * 1e3,
             }
         });
     }

@@ -10,9 +10,11 @@ use egui::{Color32, RichText, Sense, Stroke};
 
 mod calibration;
 mod detection;
+mod failures;
 mod selection;
 mod sweep;
 
+pub use failures::failure_window;
 pub use sweep::sweep_window;
 
 use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};

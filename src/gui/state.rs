@@ -76,6 +76,14 @@ pub enum Action {
     ExportClip(PathBuf),
     /// Read a sweep folder and show its AP-against-α plot.
     OpenSweep(PathBuf),
+    /// Open (or close) the failure browser.
+    ToggleFailures,
+    /// Scan the session's case over the browser's scope at the session's perturbation.
+    ScanFailures,
+    /// Stop the scan in flight.
+    CancelScan,
+    /// Load a failure's sample and select and focus its box.
+    GoToFailure(crate::failures::BoxFailure),
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -98,6 +106,8 @@ pub struct Shell {
     pub play: Option<Play>,
     /// The open sweep folder (the sweep window).
     pub sweep: Option<SweepView>,
+    /// The failure browser, while open.
+    pub failures: Option<FailureBrowser>,
     /// First sight: the window opened without a session shows the source-LiDAR colours at α = 0
     /// and switches to tr(Ξ) the first time α leaves 0, unless the user chose a colouring first.
     pub auto_color: bool,
@@ -118,6 +128,60 @@ impl Shell {
         self.recent.retain(|p| p != path);
         self.recent.insert(0, path.clone());
         self.recent.truncate(8);
+    }
+}
+
+/// Which samples a failure scan covers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ScanScope {
+    /// The scene of the sample on screen.
+    Scene,
+    /// Every sample of the dataset.
+    Dataset,
+}
+
+/// How the failure browser sorts its boxes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FailureSort {
+    /// Samples worst first (misses + false positives, then the worst IoU drop).
+    Sample,
+    /// The largest IoU drop first.
+    Drop,
+    /// Misses, then false positives, then drops.
+    Kind,
+}
+
+/// The failure browser: a scan of the session's case at the session's perturbation.
+#[derive(Debug, Clone)]
+pub struct FailureBrowser {
+    pub scope: ScanScope,
+    pub sort: FailureSort,
+    /// The scan in flight: its id, samples done (shared with the worker), its total, and the
+    /// flag that cancels it.
+    pub running: Option<(
+        u64,
+        Arc<std::sync::atomic::AtomicUsize>,
+        usize,
+        Arc<std::sync::atomic::AtomicBool>,
+    )>,
+    /// The last finished scan: its case, α and seed, and the samples worst first.
+    pub result: Option<(Case, f64, u64, Vec<crate::failures::SampleFailures>)>,
+    /// Wall time of the last scan (ms).
+    pub millis: f64,
+    /// The case, α and seed of the scan in flight.
+    pub scanning: Option<(Case, f64, u64)>,
+}
+
+impl Default for FailureBrowser {
+    fn default() -> Self {
+        Self {
+            scope: ScanScope::Scene,
+            sort: FailureSort::Sample,
+            running: None,
+            result: None,
+            millis: 0.0,
+            scanning: None,
+        }
     }
 }
 

@@ -46,6 +46,9 @@ impl MlodApp {
             }
         }
         self.selection_changed();
+        if found.is_some() && std::mem::take(&mut self.focus_pending) {
+            self.focus_selection();
+        }
     }
 
     fn selection_changed(&mut self) {

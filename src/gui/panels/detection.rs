@@ -37,6 +37,13 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             .clicked();
     });
     compare_row(p, ui);
+    if ui
+        .button("failure cases…")
+        .on_hover_text("Scan this case over the scene or the dataset and list its worst samples and boxes")
+        .clicked()
+    {
+        p.act(Action::ToggleFailures);
+    }
     let d = &mut p.session.detection;
     let mlod = d.case.is_mlod();
     ui.checkbox(&mut d.auto_run, "run again on every change")
