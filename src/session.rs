@@ -70,6 +70,19 @@ pub struct Session {
     /// The sweep folder whose AP-against-α plot is open (the sweep window).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sweep: Option<PathBuf>,
+    /// The failure browser's source, when it is open: reopening the session scans again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failures: Option<FailureScope>,
+}
+
+/// Which samples the failure browser scans.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FailureScope {
+    /// The scene of the sample on screen.
+    Scene,
+    /// Every sample of the dataset.
+    Dataset,
 }
 
 /// The layer a selected box belongs to.
@@ -190,6 +203,7 @@ impl Session {
             selection: None,
             compare: None,
             sweep: None,
+            failures: None,
         }
     }
 

@@ -895,6 +895,19 @@ fn write_screenshot_sessions() {
     h.state_mut().focus_selection();
     h.run_steps(2);
     save(&h, "selected");
+    // The failure browser: MLOD-I over the scene at α = 0.1, scanned on load.
+    let mut s = mlod_session(0.1, ColorMode::Trace);
+    s.failures = Some(mlod::session::FailureScope::Scene);
+    s.detection.auto_run = true;
+    let mut h = harness(Some(s));
+    h.state_mut().set_preset(View::Bev);
+    h.run_steps(3);
+    assert!(h
+        .state()
+        .failure_browser()
+        .and_then(|b| b.result.as_ref())
+        .is_some());
+    save(&h, "failures");
     // The sweep window on the committed Table II run, over the first-sight view.
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
     h.state_mut()
@@ -1349,4 +1362,15 @@ fn the_failure_browser_lists_the_scenes_worst_samples_as_the_cli_does_and_goes_t
         matches!(v.final_gt_outcomes()[j], GtOutcome::Missed),
         "missed on screen too"
     );
+    // The session keeps the browser's source: reopened, it scans again, and the selection.
+    let saved = h.state().current_session();
+    assert_eq!(saved.failures, Some(mlod::session::FailureScope::Scene));
+    let b = harness(Some(saved));
+    let again = b
+        .state()
+        .failure_browser()
+        .and_then(|x| x.result.clone())
+        .expect("scanned on load");
+    assert_eq!(again.3, rows);
+    assert_eq!(b.state().selected_box(), Some((BoxLayer::Truth, j)));
 }

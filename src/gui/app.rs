@@ -93,6 +93,8 @@ pub struct MlodApp {
     detect_on_load: bool,
     /// Focus the selection as soon as it is found.
     focus_pending: bool,
+    /// Scan for failure cases once the sample is fused (a session with the browser open).
+    scan_on_load: bool,
 }
 
 impl MlodApp {
@@ -163,10 +165,12 @@ impl MlodApp {
             pending_selection: None,
             detect_on_load: false,
             focus_pending: false,
+            scan_on_load: false,
             session,
         };
         let path = app.session.dataset.clone();
         app.open_dataset(path);
+        app.reopen_failures();
         app.process_jobs(0.0);
         app.reopen_sweep(0.0);
         app
@@ -418,6 +422,9 @@ impl MlodApp {
                 if auto_run || std::mem::take(&mut self.detect_on_load) {
                     self.run_detector();
                 }
+                if std::mem::take(&mut self.scan_on_load) {
+                    self.scan_failures(now);
+                }
                 self.loaded.fuse_ms = start.elapsed().as_secs_f64() * 1e3;
             }
             Err(e) => self.toast(now, format!("cannot fuse: {e}"), true),
@@ -504,6 +511,7 @@ impl MlodApp {
     /// The session as it stands now (camera included), for saving.
     pub fn current_session(&self) -> Session {
         let mut s = self.session.clone();
+        s.failures = self.shell.failures.as_ref().map(|b| b.scope);
         s.camera = Some(pose_from_camera(&self.view.camera));
         s.point_size = self.view.settings.point_size;
         s
@@ -520,6 +528,7 @@ impl MlodApp {
         self.shell.auto_color = false;
         self.loaded.detection_b = None;
         self.reopen_sweep(0.0);
+        self.reopen_failures();
         if same_dataset {
             match self.wanted_token.clone() {
                 Some(t)

@@ -19,7 +19,7 @@ use crate::inspect::{PointsInside, PredictionDetails};
 use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::pipeline::FusedCloud;
 use crate::refine::Refined;
-use crate::session::{BoxLayer, CameraPose, DetectionSettings};
+use crate::session::{BoxLayer, CameraPose, DetectionSettings, FailureScope};
 
 /// Ground-truth box colour (paper: green).
 pub const GT_COLOR: [u8; 4] = [70, 230, 110, 255];
@@ -131,15 +131,6 @@ impl Shell {
     }
 }
 
-/// Which samples a failure scan covers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ScanScope {
-    /// The scene of the sample on screen.
-    Scene,
-    /// Every sample of the dataset.
-    Dataset,
-}
-
 /// How the failure browser sorts its boxes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FailureSort {
@@ -154,7 +145,7 @@ pub enum FailureSort {
 /// The failure browser: a scan of the session's case at the session's perturbation.
 #[derive(Debug, Clone)]
 pub struct FailureBrowser {
-    pub scope: ScanScope,
+    pub scope: FailureScope,
     pub sort: FailureSort,
     /// The scan in flight: its id, samples done (shared with the worker), its total, and the
     /// flag that cancels it.
@@ -175,7 +166,7 @@ pub struct FailureBrowser {
 impl Default for FailureBrowser {
     fn default() -> Self {
         Self {
-            scope: ScanScope::Scene,
+            scope: FailureScope::Scene,
             sort: FailureSort::Sample,
             running: None,
             result: None,

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use super::MlodApp;
 use crate::failures::{BoxFailure, FailureKind, SampleFailures, ScanConfig};
-use crate::gui::state::{FailureBrowser, ScanScope};
-use crate::session::{BoxLayer, BoxSelection};
+use crate::gui::state::FailureBrowser;
+use crate::session::{BoxLayer, BoxSelection, FailureScope};
 
 impl MlodApp {
     /// Opens the failure browser, or closes it (cancelling a scan in flight).
@@ -24,13 +24,22 @@ impl MlodApp {
         }
     }
 
+    /// Opens the browser a session names and scans once the sample is on screen.
+    pub(super) fn reopen_failures(&mut self) {
+        self.shell.failures = self.session.failures.map(|scope| FailureBrowser {
+            scope,
+            ..Default::default()
+        });
+        self.scan_on_load = self.session.failures.is_some();
+    }
+
     /// The failure browser, if open.
     pub fn failure_browser(&self) -> Option<&FailureBrowser> {
         self.shell.failures.as_ref()
     }
 
     /// Sets the scope of the next scan (opening the browser if needed).
-    pub fn set_scan_scope(&mut self, scope: ScanScope) {
+    pub fn set_scan_scope(&mut self, scope: FailureScope) {
         self.shell
             .failures
             .get_or_insert_with(FailureBrowser::default)
@@ -38,7 +47,7 @@ impl MlodApp {
     }
 
     /// The samples a scan of `scope` covers, in dataset order.
-    fn scan_tokens(&self, scope: ScanScope) -> Vec<String> {
+    fn scan_tokens(&self, scope: FailureScope) -> Vec<String> {
         let scene = self.loaded.frame.as_ref().and_then(|f| {
             self.loaded
                 .samples
@@ -49,7 +58,7 @@ impl MlodApp {
         self.loaded
             .samples
             .iter()
-            .filter(|s| scope == ScanScope::Dataset || Some(&s.scene_token) == scene.as_ref())
+            .filter(|s| scope == FailureScope::Dataset || Some(&s.scene_token) == scene.as_ref())
             .map(|s| s.sample_token.clone())
             .collect()
     }

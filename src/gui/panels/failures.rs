@@ -8,9 +8,8 @@ use egui::RichText;
 
 use super::Panels;
 use crate::failures::{BoxFailure, FailureKind};
-use crate::gui::state::{
-    color32, Action, FailureSort, ScanScope, FALSE_POSITIVE_COLOR, GT_COLOR, SELECTED_COLOR,
-};
+use crate::gui::state::{color32, Action, FailureSort, FALSE_POSITIVE_COLOR, GT_COLOR, SELECTED_COLOR};
+use crate::session::FailureScope;
 
 /// Rows shown at most (the worst first).
 const MAX_ROWS: usize = 200;
@@ -49,8 +48,8 @@ fn browser(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     };
     let mut actions = Vec::new();
     ui.horizontal(|ui| {
-        ui.radio_value(&mut b.scope, ScanScope::Scene, "this scene");
-        ui.radio_value(&mut b.scope, ScanScope::Dataset, "whole dataset");
+        ui.radio_value(&mut b.scope, FailureScope::Scene, "this scene");
+        ui.radio_value(&mut b.scope, FailureScope::Dataset, "whole dataset");
         let label = format!("scan {} at α = {alpha} (seed {seed})", case.paper_name());
         if ui
             .add_enabled(b.running.is_none(), egui::Button::new(label))
