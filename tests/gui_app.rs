@@ -44,6 +44,7 @@ fn harness_with(session: Option<Session>, models: Option<std::path::PathBuf>) ->
                     session,
                     synchronous: true,
                     measure_frames: None,
+                    measure_run: false,
                     models,
                 },
             )
@@ -184,6 +185,7 @@ fn bad_dataset_keeps_the_window_up_with_an_error() {
                     session: None,
                     synchronous: true,
                     measure_frames: None,
+                    measure_run: false,
                     models: None,
                 },
             )
@@ -1224,6 +1226,7 @@ fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
         session: Some(session_at(0.0, ColorMode::Trace)),
         synchronous: true,
         measure_frames: None,
+        measure_run: false,
         models: None,
     };
     let clip = ClipOptions {

@@ -19,6 +19,10 @@ pub struct GuiArgs {
     /// Measure: repaint continuously for N frames, print frame times, exit.
     #[arg(long)]
     measure_frames: Option<usize>,
+    /// With --measure-frames: then press Run and scan the scene for failure cases, printing the
+    /// frame times while each is in flight and the time from Run to the boxes on screen.
+    #[arg(long, requires = "measure_frames")]
+    measure_run: bool,
 }
 
 #[derive(clap::Args)]
@@ -113,6 +117,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
         session,
         synchronous: false,
         measure_frames: None,
+        measure_run: false,
         models: None,
     })
 }
@@ -121,6 +126,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
 pub fn gui(args: GuiArgs) -> Result<()> {
     let mut options = app_options(args.dataset, args.session)?;
     options.measure_frames = args.measure_frames.filter(|n| *n > 0);
+    options.measure_run = args.measure_run;
     mlod::gui::run(options).context("the debugger window failed")
 }
 

@@ -40,6 +40,10 @@ pub struct AppOptions {
     /// Measure the window: repaint continuously for this many frames, print the frame times to
     /// stderr and close (`mlod gui --measure-frames N`).
     pub measure_frames: Option<usize>,
+    /// With `measure_frames`: after the idle frames, press Run (the session's case) and then scan
+    /// the scene for failure cases, measuring the frames while each is in flight and the time
+    /// from Run to the boxes on screen (`mlod gui --measure-frames N --measure-run`).
+    pub measure_run: bool,
     /// Folder of the stage-1 weights and their manifest (default: `$MLOD_MODELS`, else the
     /// crate's `assets/models`).
     pub models: Option<PathBuf>,
@@ -70,7 +74,7 @@ pub struct MlodApp {
     needs_fuse: bool,
     needs_color: bool,
     hovered_box: Option<(usize, BoxStats)>,
-    measure: Option<(usize, Vec<Instant>)>,
+    measure: Option<Measure>,
     viewport_rect: egui::Rect,
     detectors: BTreeMap<Case, LoadedDetector>,
     detect_again: bool,
@@ -147,7 +151,14 @@ impl MlodApp {
                 ..Default::default()
             },
             viewport_rect: egui::Rect::NOTHING,
-            measure: options.measure_frames.map(|n| (n, Vec::with_capacity(n + 1))),
+            measure: options.measure_frames.map(|n| Measure {
+                frames: n,
+                run: options.measure_run,
+                phase: MeasurePhase::Idle,
+                stamps: Vec::with_capacity(n + 1),
+                report: Vec::new(),
+                started: Instant::now(),
+            }),
             detectors: BTreeMap::new(),
             detect_again: false,
             hovered_detection: None,
@@ -741,6 +752,7 @@ impl MlodApp {
             session: Some(self.current_session()),
             synchronous: true,
             measure_frames: None,
+            measure_run: false,
             models: Some(self.models_dir.clone()),
         };
         self.toast(
@@ -843,36 +855,109 @@ impl MlodApp {
 impl MlodApp {
     /// Frame-time measurement (see [`AppOptions::measure_frames`]): starts once a sample is drawn.
     fn measure_frame(&mut self, ctx: &egui::Context) {
-        let Some((n, stamps)) = &mut self.measure else {
+        if self.measure.is_none() {
             return;
-        };
+        }
         if self.loaded.fused.is_none() {
             ctx.request_repaint();
             return;
         }
-        stamps.push(Instant::now());
-        if stamps.len() > *n {
-            let mut dt: Vec<f64> = stamps
-                .windows(2)
-                .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
-                .collect();
-            dt.sort_by(f64::total_cmp);
-            let mean = dt.iter().sum::<f64>() / dt.len() as f64;
-            let pct = |q: f64| dt[((dt.len() - 1) as f64 * q).round() as usize];
-            eprintln!(
-                "frames: {}  points: {}  mean {:.1} ms  p50 {:.1} ms  p95 {:.1} ms",
-                dt.len(),
-                self.loaded.fused.as_ref().map_or(0, |c| c.len()),
-                mean,
-                pct(0.5),
-                pct(0.95)
-            );
-            self.measure = None;
-            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
-        } else {
-            ctx.request_repaint();
+        let busy = self.loaded.detecting || self.shell.failures.as_ref().is_some_and(|b| b.running.is_some());
+        let has_boxes = self.loaded.detection.is_some();
+        let points = self.loaded.fused.as_ref().map_or(0, |c| c.len());
+        let Some(m) = self.measure.as_mut() else { return };
+        m.stamps.push(Instant::now());
+        let next = match m.phase {
+            MeasurePhase::Idle if m.stamps.len() > m.frames => {
+                m.report.push(frame_stats("idle", &m.stamps, points));
+                m.run.then_some(MeasurePhase::Detect)
+            }
+            MeasurePhase::Detect if !busy && has_boxes => {
+                m.report.push(format!(
+                    "run to boxes on screen: {:.0} ms",
+                    m.started.elapsed().as_secs_f64() * 1e3
+                ));
+                m.report.push(frame_stats("while detecting", &m.stamps, points));
+                Some(MeasurePhase::Scan)
+            }
+            MeasurePhase::Scan if !busy => {
+                m.report.push(format!(
+                    "scene scan: {:.0} ms",
+                    m.started.elapsed().as_secs_f64() * 1e3
+                ));
+                m.report.push(frame_stats("while scanning", &m.stamps, points));
+                None
+            }
+            _ => {
+                ctx.request_repaint();
+                return;
+            }
+        };
+        match next {
+            Some(phase) => {
+                m.phase = phase;
+                m.stamps.clear();
+                m.started = Instant::now();
+                ctx.request_repaint();
+                match phase {
+                    MeasurePhase::Detect => {
+                        self.loaded.detection = None;
+                        self.run_detector();
+                    }
+                    MeasurePhase::Scan => {
+                        self.shell.failures.get_or_insert_with(Default::default);
+                        self.scan_failures(0.0);
+                    }
+                    MeasurePhase::Idle => {}
+                }
+            }
+            None => {
+                for line in &m.report {
+                    eprintln!("{line}");
+                }
+                self.measure = None;
+                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            }
         }
     }
+}
+
+/// Mean, p50 and p95 of the frame times between `stamps`.
+fn frame_stats(what: &str, stamps: &[Instant], points: usize) -> String {
+    let mut dt: Vec<f64> = stamps
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
+        .collect();
+    if dt.is_empty() {
+        return format!("{what}: no frame");
+    }
+    dt.sort_by(f64::total_cmp);
+    let mean = dt.iter().sum::<f64>() / dt.len() as f64;
+    let pct = |q: f64| dt[((dt.len() - 1) as f64 * q).round() as usize];
+    format!(
+        "{what}: frames: {}  points: {points}  mean {mean:.1} ms  p50 {:.1} ms  p95 {:.1} ms",
+        dt.len(),
+        pct(0.5),
+        pct(0.95)
+    )
+}
+
+/// The phases of `--measure-frames` (with `--measure-run`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum MeasurePhase {
+    Idle,
+    Detect,
+    Scan,
+}
+
+/// A frame-time measurement in progress.
+struct Measure {
+    frames: usize,
+    run: bool,
+    phase: MeasurePhase,
+    stamps: Vec<Instant>,
+    report: Vec<String>,
+    started: Instant,
 }
 
 /// The ego car's forward direction in the base frame (LIDAR_TOP's frame), as a yaw.
