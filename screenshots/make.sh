@@ -13,7 +13,7 @@ for s in screenshots/*.session.json; do
   xvfb-run -a -s "-screen 0 1280x800x24" sh -c "
     target/release/mlod gui --session '$s' >/dev/null 2>&1 &
     pid=\$!
-    sleep 6
+    sleep 10   # the failure browser scans the scene on load
     command -v xdotool >/dev/null && xdotool mousemove 1275 795 && sleep 1   # no hover tooltip
     import -window root 'screenshots/$name.png'
     kill \$pid"

@@ -1282,6 +1282,7 @@ fn a_sweep_folder_opens_as_its_ap_against_alpha_plot_and_the_session_keeps_it() 
     assert!(!want.rows.is_empty() && want.curves.iter().any(|c| !c.1.is_empty()));
     assert!(h.query_by_label_contains("units finished").is_some());
     assert!(h.query_by_label("— MLOD-I").is_some(), "the legend");
+    assert!(h.query_by_label("- - MLOD-I (OC)").is_some(), "(OC) dashed");
     assert!(
         h.render().unwrap().as_raw() != before.as_raw(),
         "the window is drawn"

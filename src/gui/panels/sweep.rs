@@ -28,6 +28,23 @@ fn color(i: usize) -> Color32 {
     Color32::from_rgb(r, g, b)
 }
 
+/// A curve's colour: one per case without its (OC) (an (OC) case is drawn dashed in its case's
+/// colour), in the order the sweep lists them.
+fn case_color(prog: &crate::sweep::SweepProgress, i: usize) -> Color32 {
+    let cases = &prog.config.cases;
+    let Some(me) = cases.get(i).map(|c| c.without_oc()) else {
+        return color(i);
+    };
+    let mut seen: Vec<crate::detect::Case> = Vec::new();
+    for c in cases {
+        let c = c.without_oc();
+        if !seen.contains(&c) {
+            seen.push(c);
+        }
+    }
+    color(seen.iter().position(|c| *c == me).unwrap_or(i))
+}
+
 /// The sweep window, while a sweep is open.
 pub fn sweep_window(p: &mut Panels<'_>, ctx: &egui::Context) {
     let Some(view) = p.shell.sweep.as_ref() else {
@@ -38,7 +55,7 @@ pub fn sweep_window(p: &mut Panels<'_>, ctx: &egui::Context) {
     egui::Window::new(title)
         .id(egui::Id::unique("mlod_sweep_window"))
         .open(&mut open)
-        .default_size([620.0, 420.0])
+        .default_size([640.0, 470.0])
         .resizable(true)
         .show(ctx, |ui| plot(ui, view));
     if !open {
@@ -81,13 +98,13 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
         .max(x0 + 1e-6);
     let size = egui::vec2(
         ui.available_width().max(200.0),
-        (ui.available_height() - 40.0).max(160.0),
+        (ui.available_height() - 64.0).max(160.0),
     );
     let (rect, resp) = ui.allocate_exact_size(size, Sense::hover());
     let painter = ui.painter_at(rect);
     let area = Rect::from_min_max(
         rect.min + egui::vec2(44.0, 8.0),
-        rect.max - egui::vec2(12.0, 22.0),
+        rect.max - egui::vec2(36.0, 22.0),
     );
     let sx = |x: f64| area.left() + ((x - x0) / (x1 - x0)) as f32 * area.width();
     let sy = |y: f64| area.bottom() - ((y - y0) / (y1 - y0)) as f32 * area.height();
@@ -122,10 +139,15 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
     let pointer = resp.hover_pos();
     let mut nearest: Option<(f32, usize, (f64, f64, f64))> = None;
     for (i, (_, points)) in prog.curves.iter().enumerate() {
-        let c = color(i);
+        let c = case_color(prog, i);
+        let oc = prog.config.cases.get(i).is_some_and(|c| c.is_oc());
         let screen: Vec<Pos2> = points.iter().map(|&(a, m, _)| Pos2::new(sx(a), sy(m))).collect();
         if screen.len() > 1 {
-            painter.add(egui::Shape::line(screen.clone(), Stroke::new(1.8, c)));
+            if oc {
+                painter.extend(egui::Shape::dashed_line(&screen, Stroke::new(1.8, c), 6.0, 4.0));
+            } else {
+                painter.add(egui::Shape::line(screen.clone(), Stroke::new(1.8, c)));
+            }
         }
         for (&(a, m, s), &pt) in points.iter().zip(&screen) {
             let (top, bot) = (sy(m + s), sy(m - s));
@@ -153,7 +175,9 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
     }
     ui.horizontal_wrapped(|ui| {
         for (i, (name, _)) in prog.curves.iter().enumerate() {
-            ui.label(RichText::new(format!("— {name}")).color(color(i)));
+            let oc = prog.config.cases.get(i).is_some_and(|c| c.is_oc());
+            let mark = if oc { "- -" } else { "—" };
+            ui.label(RichText::new(format!("{mark} {name}")).color(case_color(prog, i)));
         }
     });
 }
