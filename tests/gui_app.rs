@@ -1190,8 +1190,33 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
         count_pixels(&img, right, &[GT_COLOR]) > 50,
         "ground truth in the right half"
     );
-    // The session keeps compare mode; switching it off joins the halves.
+    // The session keeps compare mode and reopens pixel for pixel; switching it off joins the
+    // halves.
     assert_eq!(h.state().current_session().compare, Some(Case::MlodI));
+    let mut reopened = h.state().current_session();
+    reopened.detection.auto_run = true;
+    h.state_mut().session_mut().detection.auto_run = true;
+    let mut b = harness_with(Some(reopened.clone()), Some(models.clone()));
+    b.run_steps(4);
+    assert_eq!(b.state().compare_detection().map(|d| d.1), Some(cb));
+    let mut c = harness_with(Some(reopened), Some(models.clone()));
+    c.run_steps(4);
+    assert!(
+        b.render().unwrap().as_raw() == c.render().unwrap().as_raw(),
+        "the session does not reopen pixel for pixel"
+    );
+    // The two halves are those of the window it was saved from (its panels differ only by
+    // the pointer's hover).
+    let (ia, ib) = (h.render().unwrap(), b.render().unwrap());
+    let halves = |img: &image::RgbaImage| {
+        let (x0, x1) = (left.min.x as u32, right.max.x as u32);
+        let (y0, y1) = (left.min.y as u32 + 40, left.max.y as u32);
+        (y0..y1)
+            .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+            .map(|(x, y)| img.get_pixel(x, y).0)
+            .collect::<Vec<_>>()
+    };
+    assert!(halves(&ia) == halves(&ib), "the reopened halves differ");
     h.state_mut().set_compare(None);
     h.run_steps(2);
     assert!(h.state().hover_state().0.width() > 1.8 * left.width());
