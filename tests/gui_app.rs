@@ -1199,6 +1199,29 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
     let mut b = harness_with(Some(reopened.clone()), Some(models.clone()));
     b.run_steps(4);
     assert_eq!(b.state().compare_detection().map(|d| d.1), Some(cb));
+    // `mlod screenshot --session` renders both halves.
+    let shot = mlod::gui::screenshot(
+        AppOptions {
+            dataset: default_dataset(),
+            session: Some(reopened.clone()),
+            synchronous: true,
+            measure_frames: None,
+            measure_run: false,
+            models: Some(models.clone()),
+        },
+        (643, 400),
+    )
+    .unwrap();
+    // (count_pixels takes 1280-wide coordinates.)
+    let red_in = |x0: f32, x1: f32| {
+        let r = egui::Rect::from_min_max(egui::pos2(x0, 0.0), egui::pos2(x1, 800.0));
+        count_pixels(&shot, r, &RED)
+    };
+    assert_eq!(shot.dimensions(), (643, 400));
+    assert!(
+        red_in(646.0, 1280.0) > 5 * red_in(0.0, 636.0).max(1),
+        "MLOD-I's red boxes on the right"
+    );
     let mut c = harness_with(Some(reopened), Some(models.clone()));
     c.run_steps(4);
     assert!(

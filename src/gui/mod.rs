@@ -84,12 +84,25 @@ pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
 }
 
 /// Renders the viewport of a dataset/session headlessly (what File > Export viewport PNG writes).
+/// In compare mode, the two halves side by side (the main case left, the compare case right, one
+/// camera, a 3-pixel grey gap), as the window splits its viewport.
 pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaImage, GuiError> {
     let app = headless_loaded(options)?;
     let gpu = viewport::HeadlessGpu::new()?;
     let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
     let (view, scene) = app.viewport();
-    Ok(renderer.render(scene, view, size)?)
+    let Some(scene_b) = app.compare_scene() else {
+        return Ok(renderer.render(scene, view, size)?);
+    };
+    const GAP: u32 = 3;
+    let (w, h) = size;
+    let half = (w.saturating_sub(GAP) / 2).max(1);
+    let a = renderer.render(scene, view, (half, h))?;
+    let b = renderer.render(scene_b, view, (half, h))?;
+    let mut out = image::RgbaImage::from_pixel(w, h, image::Rgba([90, 90, 90, 255]));
+    image::imageops::replace(&mut out, &a, 0, 0);
+    image::imageops::replace(&mut out, &b, i64::from(w - half), 0);
+    Ok(out)
 }
 
 /// The app without a window, its dataset and sample loaded (jobs run inline); the first error

@@ -27,6 +27,11 @@ impl MlodApp {
             .filter(|b| *b != a && !b.is_oc() && !a.is_oc())
     }
 
+    /// The compare half's scene, in compare mode.
+    pub fn compare_scene(&self) -> Option<&crate::gui::viewport::SceneHandle> {
+        self.compare_case().map(|_| &self.scene_b)
+    }
+
     /// Switches compare mode on with `case`, or off.
     pub fn set_compare(&mut self, case: Option<Case>) {
         self.session.compare = case;
