@@ -170,12 +170,22 @@ impl Jobs {
         let repaint = self.repaint.clone();
         self.spawn(move || {
             let start = std::time::Instant::now();
-            let result = crate::failures::scan(&dataset, &models, &cfg, &cancel, &|d, _| {
-                done.store(d, std::sync::atomic::Ordering::Relaxed);
-                if let Some(ctx) = &repaint {
-                    ctx.request_repaint();
-                }
-            })
+            let scan = || {
+                crate::failures::scan(&dataset, &models, &cfg, &cancel, &|d, _| {
+                    done.store(d, std::sync::atomic::Ordering::Relaxed);
+                    if let Some(ctx) = &repaint {
+                        ctx.request_repaint();
+                    }
+                })
+            };
+            // A long scan leaves one core to the window (and its software rasteriser): its pool
+            // has one thread fewer than the machine (at least one).
+            let threads =
+                std::thread::available_parallelism().map_or(1, |n| n.get().saturating_sub(1).max(1));
+            let result = match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+                Ok(pool) => pool.install(scan),
+                Err(_) => scan(),
+            }
             .map_err(|e| e.to_string());
             JobResult::Scan {
                 id,
