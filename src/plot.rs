@@ -265,14 +265,41 @@ pub fn curves_with_error_bars_png(
             .axis_desc_style(("sans-serif", 17))
             .draw()
             .map_err(draw_err)?;
-        for (k, (label, p)) in series.iter().enumerate() {
+        // A series labelled "X (OC)" is drawn dashed in the colour of "X" (one colour per family).
+        let mut families: Vec<&str> = Vec::new();
+        for (label, p) in series {
+            let family = label.strip_suffix(" (OC)").unwrap_or(label);
+            let dashed = family.len() != label.len();
+            let k = families.iter().position(|f| *f == family).unwrap_or_else(|| {
+                families.push(family);
+                families.len() - 1
+            });
             let color = palette[k % palette.len()];
             let line: Vec<(f64, f64)> = p.iter().map(|&(x, m, _)| (x, m)).collect();
-            chart
-                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
-                .map_err(draw_err)?
-                .label(label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+            // Legend marks are drawn relative to the legend entry's anchor.
+            let legend = move |(x, y): (i32, i32)| {
+                let (a, b) = if dashed {
+                    (vec![(0, 0), (7, 0)], vec![(11, 0), (18, 0)])
+                } else {
+                    (vec![(0, 0), (18, 0)], vec![(0, 0), (0, 0)])
+                };
+                EmptyElement::at((x, y))
+                    + PathElement::new(a, color.stroke_width(2))
+                    + PathElement::new(b, color.stroke_width(2))
+            };
+            if dashed {
+                chart
+                    .draw_series(DashedLineSeries::new(line.clone(), 8, 5, color.stroke_width(2)))
+                    .map_err(draw_err)?
+                    .label(label.as_str())
+                    .legend(legend);
+            } else {
+                chart
+                    .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
+                    .map_err(draw_err)?
+                    .label(label.as_str())
+                    .legend(legend);
+            }
             // Error bars: a vertical segment of ±std with short caps.
             let cap = pad * 0.25;
             chart

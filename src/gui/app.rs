@@ -5,8 +5,10 @@
 
 mod calibration;
 mod compare;
+mod demo;
 mod detection;
 mod failures;
+mod measure;
 mod selection;
 
 use std::collections::BTreeMap;
@@ -28,6 +30,7 @@ use crate::lyft::{Frame, LidarChannel};
 use crate::pipeline::{fuse, BoxStats, FusedCloud};
 use crate::session::Session;
 use crate::uncertainty::UNCERTAIN_TRACE;
+use measure::Measure;
 
 /// How the app starts.
 #[derive(Debug, Clone)]
@@ -151,14 +154,9 @@ impl MlodApp {
                 ..Default::default()
             },
             viewport_rect: egui::Rect::NOTHING,
-            measure: options.measure_frames.map(|n| Measure {
-                frames: n,
-                run: options.measure_run,
-                phase: MeasurePhase::Idle,
-                stamps: Vec::with_capacity(n + 1),
-                report: Vec::new(),
-                started: Instant::now(),
-            }),
+            measure: options
+                .measure_frames
+                .map(|n| Measure::new(n, options.measure_run)),
             detectors: BTreeMap::new(),
             detect_again: false,
             hovered_detection: None,
@@ -185,17 +183,6 @@ impl MlodApp {
         app.process_jobs(0.0);
         app.reopen_sweep(0.0);
         app
-    }
-
-    /// Opens the session's sweep folder, if any (an error is a toast and closes it).
-    fn reopen_sweep(&mut self, now: f64) {
-        self.shell.sweep = None;
-        if let Some(dir) = self.session.sweep.clone() {
-            if let Err(e) = self.open_sweep(&dir) {
-                self.session.sweep = None;
-                self.toast(now, format!("cannot open the sweep: {e}"), true);
-            }
-        }
     }
 
     /// Starts opening a dataset; the current one stays until the new one has loaded.
@@ -691,78 +678,6 @@ impl MlodApp {
         Ok(cloud.len())
     }
 
-    /// Reads a sweep folder (finished or not) and opens the sweep window on it; an error keeps
-    /// the window as it was.
-    pub fn open_sweep(&mut self, dir: &std::path::Path) -> Result<(), crate::sweep::SweepError> {
-        let progress = crate::sweep::progress(dir)?;
-        self.session.sweep = Some(dir.to_path_buf());
-        self.shell.sweep = Some(super::state::SweepView {
-            dir: dir.to_path_buf(),
-            progress,
-        });
-        Ok(())
-    }
-
-    /// The sweep the sweep window shows.
-    pub fn open_sweep_view(&self) -> Option<&super::state::SweepView> {
-        self.shell.sweep.as_ref()
-    }
-
-    /// Starts "play α": α from 0 to `alpha_to` in `frames` steps.
-    pub fn start_play(&mut self, alpha_to: f64, frames: usize) {
-        if alpha_to.is_finite() && alpha_to > 0.0 && frames >= 2 {
-            self.shell.play = Some(super::state::Play {
-                alpha_to,
-                frames,
-                next: 0,
-            });
-        }
-    }
-
-    /// Whether "play α" is running.
-    pub fn is_playing(&self) -> bool {
-        self.shell.play.is_some()
-    }
-
-    /// One step of "play α" once the previous one is on screen; true if it stepped.
-    fn advance_play(&mut self) -> bool {
-        let Some(mut play) = self.shell.play else {
-            return false;
-        };
-        if self.is_busy() || self.is_calibrating() {
-            return false;
-        }
-        self.session.fuse.perturbation.alpha = play.alpha(play.next);
-        self.mark_fuse();
-        play.next += 1;
-        self.shell.play = (play.next < play.frames).then_some(play);
-        true
-    }
-
-    /// Renders "play α" of the current view to a GIF in the background.
-    fn export_clip(&mut self, path: PathBuf, now: f64) {
-        let alpha = self.session.fuse.perturbation.alpha;
-        let clip = super::clip::ClipOptions {
-            alpha_to: if alpha > 0.0 { alpha } else { 0.1 },
-            frames: PLAY_FRAMES,
-            ..Default::default()
-        };
-        let options = AppOptions {
-            dataset: self.session.dataset.clone(),
-            session: Some(self.current_session()),
-            synchronous: true,
-            measure_frames: None,
-            measure_run: false,
-            models: Some(self.models_dir.clone()),
-        };
-        self.toast(
-            now,
-            format!("rendering {} frames to {}…", clip.frames, path.display()),
-            false,
-        );
-        self.jobs.clip(options, clip, path);
-    }
-
     /// The viewport (split in two in compare mode), the box under the pointer and its tooltip.
     fn central(&mut self, ui: &mut egui::Ui) {
         if self.compare_case().is_some() {
@@ -852,113 +767,7 @@ impl MlodApp {
     }
 }
 
-impl MlodApp {
-    /// Frame-time measurement (see [`AppOptions::measure_frames`]): starts once a sample is drawn.
-    fn measure_frame(&mut self, ctx: &egui::Context) {
-        if self.measure.is_none() {
-            return;
-        }
-        if self.loaded.fused.is_none() {
-            ctx.request_repaint();
-            return;
-        }
-        let busy = self.loaded.detecting || self.shell.failures.as_ref().is_some_and(|b| b.running.is_some());
-        let has_boxes = self.loaded.detection.is_some();
-        let points = self.loaded.fused.as_ref().map_or(0, |c| c.len());
-        let Some(m) = self.measure.as_mut() else { return };
-        m.stamps.push(Instant::now());
-        let next = match m.phase {
-            MeasurePhase::Idle if m.stamps.len() > m.frames => {
-                m.report.push(frame_stats("idle", &m.stamps, points));
-                m.run.then_some(MeasurePhase::Detect)
-            }
-            MeasurePhase::Detect if !busy && has_boxes => {
-                m.report.push(format!(
-                    "run to boxes on screen: {:.0} ms",
-                    m.started.elapsed().as_secs_f64() * 1e3
-                ));
-                m.report.push(frame_stats("while detecting", &m.stamps, points));
-                Some(MeasurePhase::Scan)
-            }
-            MeasurePhase::Scan if !busy => {
-                m.report.push(format!(
-                    "scene scan: {:.0} ms",
-                    m.started.elapsed().as_secs_f64() * 1e3
-                ));
-                m.report.push(frame_stats("while scanning", &m.stamps, points));
-                None
-            }
-            _ => {
-                ctx.request_repaint();
-                return;
-            }
-        };
-        match next {
-            Some(phase) => {
-                m.phase = phase;
-                m.stamps.clear();
-                m.started = Instant::now();
-                ctx.request_repaint();
-                match phase {
-                    MeasurePhase::Detect => {
-                        self.loaded.detection = None;
-                        self.run_detector();
-                    }
-                    MeasurePhase::Scan => {
-                        self.shell.failures.get_or_insert_with(Default::default);
-                        self.scan_failures(0.0);
-                    }
-                    MeasurePhase::Idle => {}
-                }
-            }
-            None => {
-                for line in &m.report {
-                    eprintln!("{line}");
-                }
-                self.measure = None;
-                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
-            }
-        }
-    }
-}
-
-/// Mean, p50 and p95 of the frame times between `stamps`.
-fn frame_stats(what: &str, stamps: &[Instant], points: usize) -> String {
-    let mut dt: Vec<f64> = stamps
-        .windows(2)
-        .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
-        .collect();
-    if dt.is_empty() {
-        return format!("{what}: no frame");
-    }
-    dt.sort_by(f64::total_cmp);
-    let mean = dt.iter().sum::<f64>() / dt.len() as f64;
-    let pct = |q: f64| dt[((dt.len() - 1) as f64 * q).round() as usize];
-    format!(
-        "{what}: frames: {}  points: {points}  mean {mean:.1} ms  p50 {:.1} ms  p95 {:.1} ms",
-        dt.len(),
-        pct(0.5),
-        pct(0.95)
-    )
-}
-
-/// The phases of `--measure-frames` (with `--measure-run`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum MeasurePhase {
-    Idle,
-    Detect,
-    Scan,
-}
-
-/// A frame-time measurement in progress.
-struct Measure {
-    frames: usize,
-    run: bool,
-    phase: MeasurePhase,
-    stamps: Vec<Instant>,
-    report: Vec<String>,
-    started: Instant,
-}
+impl MlodApp {}
 
 /// The ego car's forward direction in the base frame (LIDAR_TOP's frame), as a yaw.
 fn ego_heading(frame: &Frame) -> f32 {
