@@ -125,9 +125,11 @@ impl SweepConfig {
             .alphas
             .iter()
             .chain(&self.assumed_alpha)
-            .find(|a| !(a.is_finite() && **a >= 0.0))
+            .find(|a| !(a.is_finite() && (0.0..=1.0).contains(*a)))
         {
-            return bad(format!("α must be finite and ≥ 0, got {a}"));
+            return bad(format!(
+                "α must be in [0, 1] (the paper studies 0 to 0.1), got {a}"
+            ));
         }
         for (i, c) in self.cases.iter().enumerate() {
             if self.cases[..i].contains(c) {

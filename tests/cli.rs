@@ -906,3 +906,129 @@ fn calibrate_reports_errors_before_and_after_and_oc_cases_run() {
     assert_ne!(oc, drifted, "calibration changed nothing");
     assert!(oc.to_string().len() > 10 && clean.to_string().len() > 10);
 }
+
+#[test]
+fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let out_gif = std::env::temp_dir().join(format!("mlod-absurd-{}.gif", std::process::id()));
+    let gif = out_gif.to_str().unwrap();
+    let cases: Vec<Vec<&str>> = vec![
+        vec!["clip", "--alpha-to", "nan", "--out", gif],
+        vec!["clip", "--alpha-to", "5", "--out", gif],
+        vec!["clip", "--alpha-to", "-0.1", "--out", gif],
+        vec!["clip", "--frames", "0", "--out", gif],
+        vec!["clip", "--frames", "10000000", "--out", gif],
+        vec!["clip", "--fps", "0", "--out", gif],
+        vec!["clip", "--size", "100000x100000", "--out", gif],
+        vec!["clip", "--size", "axb", "--out", gif],
+        vec!["clip", "--session", "/nonexistent/session.json", "--out", gif],
+        vec!["screenshot", "--size", "100000x100000", "--out", gif],
+        vec![
+            "failures",
+            "--dataset",
+            sample,
+            "--case",
+            "input",
+            "--alpha",
+            "-1",
+        ],
+        vec![
+            "failures",
+            "--dataset",
+            sample,
+            "--case",
+            "input",
+            "--alpha",
+            "nan",
+        ],
+        vec!["failures", "--dataset", sample, "--case", "input", "--alpha", "2"],
+        vec![
+            "failures",
+            "--dataset",
+            sample,
+            "--case",
+            "input-oc",
+            "--alpha",
+            "0.1",
+        ],
+        vec![
+            "failures",
+            "--dataset",
+            sample,
+            "--case",
+            "input",
+            "--scene",
+            "no-such-scene",
+        ],
+        vec![
+            "failures",
+            "--dataset",
+            sample,
+            "--case",
+            "input",
+            "--match-iou",
+            "2",
+        ],
+        vec!["failures", "--dataset", "/nonexistent/dataset", "--case", "input"],
+        vec!["failures", "--dataset", sample, "--case", "no-such-case"],
+        vec![
+            "sweep",
+            "--dataset",
+            sample,
+            "--cases",
+            "input",
+            "--alphas",
+            "2",
+            "--trials",
+            "1",
+            "--out",
+            gif,
+        ],
+        vec![
+            "sweep",
+            "--dataset",
+            sample,
+            "--cases",
+            "input",
+            "--alphas",
+            "nan",
+            "--trials",
+            "1",
+            "--out",
+            gif,
+        ],
+        vec![
+            "sweep",
+            "--dataset",
+            sample,
+            "--cases",
+            "input",
+            "--alphas",
+            "0.1",
+            "--trials",
+            "0",
+            "--out",
+            gif,
+        ],
+        vec![
+            "sweep",
+            "--dataset",
+            sample,
+            "--cases",
+            "input,input",
+            "--alphas",
+            "0.1",
+            "--out",
+            gif,
+        ],
+        vec!["eval", "--dataset", sample, "--case", "input", "--alpha", "1e9"],
+    ];
+    for args in &cases {
+        let out = mlod(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        assert!(!err.trim().is_empty(), "{args:?} gave no message");
+    }
+    assert!(!out_gif.exists(), "nothing written");
+}

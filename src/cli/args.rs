@@ -28,8 +28,10 @@ pub fn parse_unit(s: &str) -> Result<f64, String> {
 
 pub fn parse_alpha(s: &str) -> Result<f64, String> {
     let a = parse_f64(s)?;
-    if a < 0.0 {
-        return Err(format!("alpha must be >= 0, got {a}"));
+    if !(0.0..=1.0).contains(&a) {
+        return Err(format!(
+            "alpha must be in [0, 1] (the paper studies 0 to 0.1), got {a}"
+        ));
     }
     Ok(a)
 }
