@@ -907,6 +907,29 @@ fn calibrate_reports_errors_before_and_after_and_oc_cases_run() {
     assert!(oc.to_string().len() > 10 && clean.to_string().len() > 10);
 }
 
+/// `mlod sweep` arguments with the given cases, α list and trials.
+fn sweep<'a>(
+    sample: &'a str,
+    cases: &'a str,
+    alphas: &'a str,
+    trials: &'a str,
+    out: &'a str,
+) -> Vec<&'a str> {
+    vec![
+        "sweep",
+        "--dataset",
+        sample,
+        "--cases",
+        cases,
+        "--alphas",
+        alphas,
+        "--trials",
+        trials,
+        "--out",
+        out,
+    ]
+}
+
 #[test]
 fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
     let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
@@ -971,56 +994,10 @@ fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
         ],
         vec!["failures", "--dataset", "/nonexistent/dataset", "--case", "input"],
         vec!["failures", "--dataset", sample, "--case", "no-such-case"],
-        vec![
-            "sweep",
-            "--dataset",
-            sample,
-            "--cases",
-            "input",
-            "--alphas",
-            "2",
-            "--trials",
-            "1",
-            "--out",
-            gif,
-        ],
-        vec![
-            "sweep",
-            "--dataset",
-            sample,
-            "--cases",
-            "input",
-            "--alphas",
-            "nan",
-            "--trials",
-            "1",
-            "--out",
-            gif,
-        ],
-        vec![
-            "sweep",
-            "--dataset",
-            sample,
-            "--cases",
-            "input",
-            "--alphas",
-            "0.1",
-            "--trials",
-            "0",
-            "--out",
-            gif,
-        ],
-        vec![
-            "sweep",
-            "--dataset",
-            sample,
-            "--cases",
-            "input,input",
-            "--alphas",
-            "0.1",
-            "--out",
-            gif,
-        ],
+        sweep(sample, "input", "2", "1", gif),
+        sweep(sample, "input", "nan", "1", gif),
+        sweep(sample, "input", "0.1", "0", gif),
+        sweep(sample, "input,input", "0.1", "1", gif),
         vec!["eval", "--dataset", sample, "--case", "input", "--alpha", "1e9"],
     ];
     for args in &cases {
