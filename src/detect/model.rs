@@ -144,7 +144,7 @@ impl Stage1Model {
     pub fn load_shipped(dir: &Path, case: Case) -> Result<Self, DetectError> {
         let manifest = Manifest::load(dir)?;
         let entry = manifest.entry(dir, case)?;
-        let mut model = Self::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+        let mut model = Self::load(&entry.path_in(dir)?, case, Some(&entry.sha256))?;
         if let Some(v) = manifest.vote_iou() {
             model.config.vote_iou = Some(v);
         }
@@ -343,7 +343,7 @@ impl ResultFusion {
         let mut generators = Vec::new();
         for case in [Case::Top, Case::Left, Case::Right] {
             let entry = manifest.entry(dir, case)?;
-            let mut model = Stage1Model::load(&dir.join(&entry.file), case, Some(&entry.sha256))?;
+            let mut model = Stage1Model::load(&entry.path_in(dir)?, case, Some(&entry.sha256))?;
             model.config.vote_iou = vote_iou;
             let t = manifest.temperatures.get(&case).copied().unwrap_or(1.0);
             generators.push((model, t));

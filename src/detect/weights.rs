@@ -133,6 +133,28 @@ pub struct ModelEntry {
     pub init: Option<InitRecord>,
 }
 
+impl ModelEntry {
+    /// The weights file in the models folder `dir`: `file` must be a plain file name (no
+    /// separator, no `..`), so a manifest cannot make the program read outside its folder.
+    pub fn path_in(&self, dir: &Path) -> Result<std::path::PathBuf, DetectError> {
+        let f = self.file.as_str();
+        let plain = !f.is_empty()
+            && f != "."
+            && f != ".."
+            && !f.contains(['/', '\\'])
+            && Path::new(f).components().count() == 1;
+        if !plain {
+            return Err(DetectError::Manifest {
+                path: dir.join(Manifest::FILE),
+                what: format!(
+                    "model file '{f}' must be a file name inside the models folder (no '/', '\\' or '..')"
+                ),
+            });
+        }
+        Ok(dir.join(f))
+    }
+}
+
 /// The starting point of a warm-started training: file name and its sha256 when it was read.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct InitRecord {
@@ -291,6 +313,41 @@ pub fn default_models_dir() -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_manifest_cannot_point_outside_its_folder() {
+        let entry = |file: &str| ModelEntry {
+            file: file.into(),
+            sha256: String::new(),
+            command: String::new(),
+            seed: 0,
+            steps: 0,
+            wall_time_s: 0.0,
+            test_ap: BTreeMap::new(),
+            init: None,
+        };
+        let dir = Path::new("/models");
+        assert_eq!(
+            entry("top.safetensors").path_in(dir).unwrap(),
+            dir.join("top.safetensors")
+        );
+        for bad in [
+            "",
+            ".",
+            "..",
+            "../x.safetensors",
+            "/etc/passwd",
+            "a/b.safetensors",
+            "..\\x",
+            "sub\\w",
+        ] {
+            let e = entry(bad).path_in(dir).unwrap_err().to_string();
+            assert!(
+                e.contains("manifest.json") && e.contains("file name"),
+                "{bad}: {e}"
+            );
+        }
+    }
 
     #[test]
     fn safetensors_round_trip_and_corruption_is_named() {

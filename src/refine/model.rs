@@ -185,7 +185,10 @@ impl Refiner {
             path: dir.join(Manifest::FILE),
             what,
         })?;
-        let path = dir.join(&entry.file);
+        let path = entry.path_in(dir).map_err(|e| RefineError::File {
+            path: dir.join(Manifest::FILE),
+            what: e.to_string(),
+        })?;
         let refiner = Self::load(&path, Some(&entry.sha256), decoding)?;
         if refiner.config.gather.features.trace != case.refiner_sees_trace() {
             return Err(RefineError::File {
