@@ -9,6 +9,7 @@ mod demo;
 mod detection;
 mod failures;
 mod measure;
+mod scene;
 mod selection;
 
 use std::collections::BTreeMap;
@@ -23,13 +24,12 @@ use super::panels::{self, Panels};
 use super::state::{camera_from_pose, pose_from_camera};
 use super::state::{Action, Loaded, Shell, Toast};
 use super::viewport::{self, Camera, SceneHandle, View, Viewport};
-use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
+use crate::color::ColorMode;
 use crate::detect::weights::default_models_dir;
 use crate::detect::Case;
 use crate::lyft::{Frame, LidarChannel};
 use crate::pipeline::{fuse, BoxStats, FusedCloud};
 use crate::session::Session;
-use crate::uncertainty::UNCERTAIN_TRACE;
 use measure::Measure;
 
 /// How the app starts.
@@ -429,83 +429,6 @@ impl MlodApp {
         }
     }
 
-    fn visible(&self, ch: LidarChannel) -> bool {
-        self.session.visible.get(&ch).copied().unwrap_or(true)
-    }
-
-    /// Hands positions, colours and lines of the visible LiDARs to the renderer.
-    fn rebuild_scene(&mut self) {
-        self.needs_color = false;
-        let Some(cloud) = &self.loaded.fused else { return };
-        let mut index = Vec::with_capacity(cloud.len());
-        for l in &cloud.lidars {
-            if self.visible(l.channel) {
-                index.extend(l.range.start as u32..l.range.end as u32);
-            }
-        }
-        let positions: Vec<[f32; 3]> = index
-            .iter()
-            .map(|&i| {
-                let i = i as usize;
-                [cloud.x[i], cloud.y[i], cloud.z[i]]
-            })
-            .collect();
-        self.scene_index = index;
-        let colors = self.colors();
-        if self.session.compare.is_some() {
-            if let Err(e) = self.scene_b.set_points(positions.clone(), colors.clone()) {
-                eprintln!("mlod: {e}");
-            }
-        }
-        if let Err(e) = self.scene.set_points(positions, colors) {
-            eprintln!("mlod: {e}");
-        }
-        self.rebuild_lines();
-        self.update_histogram();
-    }
-
-    /// Recolours without moving points (colour mode, range, highlight).
-    fn recolor(&mut self) {
-        self.needs_color = false;
-        let colors = self.colors();
-        let b_ok = self.session.compare.is_none() || self.scene_b.set_colors(colors.clone()).is_ok();
-        if !b_ok || self.scene.set_colors(colors).is_err() {
-            self.rebuild_scene();
-        }
-        self.update_histogram();
-    }
-
-    fn colors(&mut self) -> Vec<[u8; 4]> {
-        let Some(cloud) = &self.loaded.fused else {
-            return Vec::new();
-        };
-        if self.session.auto_range && self.session.color.mode != ColorMode::Source {
-            self.session.color.range =
-                auto_range(scalars(cloud, self.session.color.mode), self.session.color.scale);
-        }
-        let all = colorize(cloud, &self.session.color);
-        let mut out: Vec<[u8; 4]> = self.scene_index.iter().map(|&i| all[i as usize]).collect();
-        self.paint_active(&mut out);
-        out
-    }
-
-    fn update_histogram(&mut self) {
-        let Some(cloud) = &self.loaded.fused else { return };
-        let c = &self.session.color;
-        // In source-LiDAR mode the histogram still shows tr(Ξ), on its own log range.
-        self.loaded.histogram = if c.mode == ColorMode::Source {
-            histogram(
-                &cloud.trace,
-                auto_range(&cloud.trace, Scale::Log),
-                Scale::Log,
-                HISTOGRAM_BINS,
-            )
-        } else {
-            histogram(scalars(cloud, c.mode), c.range, c.scale, HISTOGRAM_BINS)
-        };
-        self.loaded.uncertain_fraction = cloud.uncertain_fraction(UNCERTAIN_TRACE);
-    }
-
     /// The session as it stands now (camera included), for saving.
     pub fn current_session(&self) -> Session {
         let mut s = self.session.clone();
@@ -766,8 +689,6 @@ impl MlodApp {
         }
     }
 }
-
-impl MlodApp {}
 
 /// The ego car's forward direction in the base frame (LIDAR_TOP's frame), as a yaw.
 fn ego_heading(frame: &Frame) -> f32 {
