@@ -184,17 +184,6 @@ mod tests {
     use super::*;
     use crate::pipeline::FusedLidar;
 
-    fn lidar(channel: LidarChannel, range: std::ops::Range<usize>) -> FusedLidar {
-        FusedLidar {
-            channel,
-            range,
-            nominal: crate::geometry::Pose::identity(),
-            noise: crate::uncertainty::ExtrinsicNoise::ZERO,
-            applied: crate::geometry::Pose::identity(),
-            calibrated: false,
-        }
-    }
-
     fn cloud() -> FusedCloud {
         // Two LiDARs: three points in a 4 × 2 × 2 box at the origin, one far away.
         let pts = [
@@ -211,8 +200,8 @@ mod tests {
             source: vec![0, 1, 1, 0],
             trace: vec![1e-3, 0.2, 0.01, 5.0],
             lidars: vec![
-                lidar(LidarChannel::Top, 0..1),
-                lidar(LidarChannel::FrontLeft, 1..3),
+                FusedLidar::identity(LidarChannel::Top, 0..1),
+                FusedLidar::identity(LidarChannel::FrontLeft, 1..3),
             ],
         }
     }

@@ -96,6 +96,22 @@ pub struct FusedCloud {
     pub lidars: Vec<FusedLidar>,
 }
 
+impl FusedLidar {
+    /// A LiDAR at the identity extrinsic, unperturbed, holding `range` of a cloud (tests build
+    /// small clouds with it).
+    #[cfg(test)]
+    pub(crate) fn identity(channel: LidarChannel, range: Range<usize>) -> Self {
+        Self {
+            channel,
+            range,
+            nominal: Pose::identity(),
+            noise: ExtrinsicNoise::ZERO,
+            applied: Pose::identity(),
+            calibrated: false,
+        }
+    }
+}
+
 impl FusedCloud {
     pub fn len(&self) -> usize {
         self.x.len()

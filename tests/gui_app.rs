@@ -471,38 +471,7 @@ fn run_with_mlod_i_draws_proposals_refinements_and_ground_truth_counted_like_eva
         .map(|r| r.detection.clone())
         .filter(|d| d.score >= settings.min_score)
         .collect();
-    let dataset = Dataset::open(default_dataset()).unwrap();
-    let opts = EvalOptions {
-        per_box: Some(MatchRule {
-            iou_threshold: settings.match_iou,
-            kind: IouKind::ThreeD,
-            max_range: f64::INFINITY,
-        }),
-        ..Default::default()
-    };
-    let report =
-        evaluate_detections(&dataset, &HashMap::from([(token.clone(), drawn.clone())]), &opts).unwrap();
-    let sample = report
-        .per_box
-        .unwrap()
-        .into_iter()
-        .find(|s| s.sample_token == token)
-        .unwrap();
-    let tp = sample
-        .preds
-        .iter()
-        .filter(|p| matches!(p.outcome, PredOutcome::TruePositive { .. }))
-        .count();
-    let fp = sample
-        .preds
-        .iter()
-        .filter(|p| matches!(p.outcome, PredOutcome::FalsePositive { .. }))
-        .count();
-    let missed = sample
-        .gts
-        .iter()
-        .filter(|g| view.categories.contains(&g.category) && matches!(g.outcome, GtOutcome::Missed))
-        .count();
+    let (tp, fp, missed) = eval_counts(&token, drawn.clone(), settings.match_iou, &view.categories);
     assert_eq!(counts.shown, drawn.len());
     assert_eq!(
         (counts.true_positives, counts.false_positives, counts.missed),
@@ -959,22 +928,7 @@ fn a_selected_box_shows_what_eval_per_box_reports_and_survives_alpha_and_session
     // `mlod eval --per-box` on the drawn refined boxes, at the panel's match IoU: the same truth,
     // IoU and residuals.
     let token = h.state().frame().unwrap().sample_token.clone();
-    let dataset = Dataset::open(default_dataset()).unwrap();
-    let opts = EvalOptions {
-        per_box: Some(MatchRule {
-            iou_threshold: settings.match_iou,
-            kind: IouKind::ThreeD,
-            max_range: f64::INFINITY,
-        }),
-        ..Default::default()
-    };
-    let report = evaluate_detections(&dataset, &HashMap::from([(token.clone(), drawn)]), &opts).unwrap();
-    let sample = report
-        .per_box
-        .unwrap()
-        .into_iter()
-        .find(|s| s.sample_token == token)
-        .unwrap();
+    let sample = per_box_sample(&token, drawn, settings.match_iou);
     let g = sample
         .gts
         .iter()
@@ -1085,14 +1039,8 @@ fn a_selected_box_shows_what_eval_per_box_reports_and_survives_alpha_and_session
     }
 }
 
-/// TP, FP and misses of `drawn` on one sample as `mlod eval --per-box` matches them (3D IoU at
-/// `match_iou`, no range limit; ground truth of other categories left out).
-fn eval_counts(
-    token: &str,
-    drawn: Vec<Detection>,
-    match_iou: f64,
-    categories: &[String],
-) -> (usize, usize, usize) {
+/// `mlod eval --per-box` of `drawn` on one sample (3D IoU at `match_iou`, no range limit).
+fn per_box_sample(token: &str, drawn: Vec<Detection>, match_iou: f64) -> mlod::eval::dataset::SampleReport {
     let dataset = Dataset::open(default_dataset()).unwrap();
     let opts = EvalOptions {
         per_box: Some(MatchRule {
@@ -1103,12 +1051,23 @@ fn eval_counts(
         ..Default::default()
     };
     let report = evaluate_detections(&dataset, &HashMap::from([(token.to_string(), drawn)]), &opts).unwrap();
-    let s = report
+    report
         .per_box
         .unwrap()
         .into_iter()
         .find(|s| s.sample_token == token)
-        .unwrap();
+        .unwrap()
+}
+
+/// TP, FP and misses of `drawn` on one sample as `mlod eval --per-box` matches them (ground truth
+/// of other categories left out).
+fn eval_counts(
+    token: &str,
+    drawn: Vec<Detection>,
+    match_iou: f64,
+    categories: &[String],
+) -> (usize, usize, usize) {
+    let s = per_box_sample(token, drawn, match_iou);
     let tp = s
         .preds
         .iter()

@@ -85,14 +85,7 @@ mod tests {
             c.source.push(if i < 2 { 0 } else { 1 });
             c.trace.push(*t);
         }
-        let lidar = |channel, range| FusedLidar {
-            channel,
-            range,
-            nominal: crate::geometry::Pose::identity(),
-            noise: crate::uncertainty::ExtrinsicNoise::ZERO,
-            applied: crate::geometry::Pose::identity(),
-            calibrated: false,
-        };
+        let lidar = FusedLidar::identity;
         c.lidars = vec![
             lidar(LidarChannel::Top, 0..2),
             lidar(LidarChannel::FrontLeft, 2..5),

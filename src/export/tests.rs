@@ -1,20 +1,11 @@
 //! Unit tests of the export writers and readers: round trips, headers, bad input.
 
 use super::*;
-use crate::geometry::Pose;
 use crate::pipeline::FusedLidar;
-use crate::uncertainty::ExtrinsicNoise;
 use rand::{Rng, SeedableRng};
 
 fn lidar(channel: LidarChannel, range: std::ops::Range<usize>) -> FusedLidar {
-    FusedLidar {
-        channel,
-        range,
-        nominal: Pose::identity(),
-        noise: ExtrinsicNoise::ZERO,
-        applied: Pose::identity(),
-        calibrated: false,
-    }
+    FusedLidar::identity(channel, range)
 }
 
 /// A random cloud of `n` points over the given LiDARs (split evenly), with its covariances.
