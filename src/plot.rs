@@ -206,6 +206,21 @@ pub fn histogram_png(
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }
 
+/// Ten distinguishable colours (matplotlib's tab10): the sweep plot's curves, here and in the
+/// window.
+pub const TAB10: [[u8; 3]; 10] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+    [188, 189, 34],
+    [23, 190, 207],
+];
+
 /// A labelled curve: points (x, mean, std).
 pub type Curve = (String, Vec<(f64, f64, f64)>);
 
@@ -234,18 +249,7 @@ pub fn curves_with_error_bars_png(
     let pad = ((x1 - x0) * 0.05).max(0.002);
     let (y0, y1) = ((y0 - 2.0).max(0.0).floor(), (y1 + 2.0).min(100.0).ceil());
     let (w, h) = (900u32, 560u32);
-    let palette = [
-        RGBColor(31, 119, 180),
-        RGBColor(255, 127, 14),
-        RGBColor(44, 160, 44),
-        RGBColor(214, 39, 40),
-        RGBColor(148, 103, 189),
-        RGBColor(140, 86, 75),
-        RGBColor(227, 119, 194),
-        RGBColor(127, 127, 127),
-        RGBColor(188, 189, 34),
-        RGBColor(23, 190, 207),
-    ];
+    let palette = TAB10.map(|[r, g, b]| RGBColor(r, g, b));
     let mut buf = vec![0u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();

@@ -53,8 +53,6 @@ pub struct AppOptions {
 }
 
 const HISTOGRAM_BINS: usize = 64;
-/// Steps of "play α" in the window (and the default of an exported clip).
-const PLAY_FRAMES: usize = 40;
 const RECENT_KEY: &str = "mlod_recent_datasets";
 
 /// The application.
@@ -552,7 +550,7 @@ impl MlodApp {
                     if self.shell.play.is_some() {
                         self.shell.play = None;
                     } else {
-                        self.start_play(alpha_to, PLAY_FRAMES);
+                        self.start_play(alpha_to, super::clip::PLAY_FRAMES);
                     }
                 }
                 Action::ExportClip(path) => self.export_clip(path, now),

@@ -9,6 +9,24 @@ use std::path::Path;
 
 use super::{viewport, AppOptions, GuiError};
 
+/// Steps of "play α" in the window, and of a clip by default.
+pub const PLAY_FRAMES: usize = 40;
+
+/// α of step `k` of `frames` equal steps from 0 to `alpha_to` (the first and last included).
+pub fn step_alpha(alpha_to: f64, frames: usize, k: usize) -> f64 {
+    alpha_to * k as f64 / (frames.max(2) - 1) as f64
+}
+
+/// Where "play α" goes from the α on screen: to that α, or from α = 0 to the paper's largest
+/// level, 0.1.
+pub fn play_target(alpha: f64) -> f64 {
+    if alpha > 0.0 {
+        alpha
+    } else {
+        0.1
+    }
+}
+
 /// What a clip covers.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClipOptions {
@@ -26,7 +44,7 @@ impl Default for ClipOptions {
     fn default() -> Self {
         Self {
             alpha_to: 0.1,
-            frames: 40,
+            frames: PLAY_FRAMES,
             size: (640, 400),
             fps: 10,
         }
@@ -55,7 +73,7 @@ impl ClipOptions {
 
     /// α of frame `k`.
     pub fn alpha(&self, k: usize) -> f64 {
-        self.alpha_to * k as f64 / (self.frames - 1) as f64
+        step_alpha(self.alpha_to, self.frames, k)
     }
 }
 

@@ -329,7 +329,7 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     let mut toggle = None;
     let mut clip = None;
     ui.horizontal(|ui| {
-        let to = if alpha_now > 0.0 { alpha_now } else { 0.1 };
+        let to = crate::gui::clip::play_target(alpha_now);
         let play = if p.shell.play.is_some() {
             "stop playing".to_string()
         } else {

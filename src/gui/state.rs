@@ -196,7 +196,7 @@ pub struct Play {
 impl Play {
     /// α of frame `k`.
     pub fn alpha(&self, k: usize) -> f64 {
-        self.alpha_to * k as f64 / (self.frames.max(2) - 1) as f64
+        crate::gui::clip::step_alpha(self.alpha_to, self.frames, k)
     }
 }
 

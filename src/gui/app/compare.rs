@@ -10,8 +10,8 @@ use eframe::egui;
 
 use super::MlodApp;
 use crate::detect::Case;
-use crate::gui::jobs::{DetectOutput, DetectRequest};
-use crate::gui::state::{DetectionCounts, DetectionView, RawDetection};
+use crate::gui::jobs::DetectOutput;
+use crate::gui::state::{DetectionCounts, DetectionView};
 use crate::gui::viewport;
 
 /// Gap between the two halves, UI points.
@@ -63,15 +63,8 @@ impl MlodApp {
             return;
         }
         self.loaded.detecting_b = true;
-        self.jobs.detect(DetectRequest {
-            frame,
-            params: self.session.fuse_params(),
-            generation: self.loaded.fuse_generation,
-            case,
-            cached: self.detectors.get(&case).cloned(),
-            models: self.models_dir.clone(),
-            compare: true,
-        });
+        let request = self.detect_request(frame, case, true);
+        self.jobs.detect(request);
     }
 
     /// A finished run of the compare half.
@@ -87,27 +80,11 @@ impl MlodApp {
         self.loaded.detecting_b = false;
         match result {
             Ok(out) => {
-                let on_screen = self
-                    .loaded
-                    .frame
-                    .as_ref()
-                    .is_some_and(|f| f.sample_token == token);
-                if on_screen && self.compare_case() == Some(case) {
-                    let raw = RawDetection {
-                        case,
-                        token,
-                        generation,
-                        detections: out.detections,
-                        refined: out.refined,
-                        categories: out.detector.categories(),
-                        millis,
-                    };
-                    let frame = self.loaded.frame.as_deref();
-                    self.loaded.detection_b =
-                        Some(DetectionView::matched(raw, frame, &self.session.detection));
+                let view = self.matched_on_screen(token, generation, case, out, millis);
+                if let Some(view) = view.filter(|_| self.compare_case() == Some(case)) {
+                    self.loaded.detection_b = Some(view);
                     self.rebuild_lines();
                 }
-                self.detectors.insert(case, out.detector);
             }
             Err(e) => {
                 self.compare_again = false;

@@ -4,7 +4,8 @@
 
 use std::path::PathBuf;
 
-use super::{AppOptions, MlodApp, PLAY_FRAMES};
+use super::{AppOptions, MlodApp};
+use crate::gui::clip::{play_target, PLAY_FRAMES};
 
 impl MlodApp {
     /// Opens the session's sweep folder, if any (an error is a toast and closes it).
@@ -70,7 +71,7 @@ impl MlodApp {
     pub(super) fn export_clip(&mut self, path: PathBuf, now: f64) {
         let alpha = self.session.fuse.perturbation.alpha;
         let clip = crate::gui::clip::ClipOptions {
-            alpha_to: if alpha > 0.0 { alpha } else { 0.1 },
+            alpha_to: play_target(alpha),
             frames: PLAY_FRAMES,
             ..Default::default()
         };

@@ -4,6 +4,8 @@
 //! active points of the hovered or selected refined box. The boxes, the matching and the active
 //! points all come from the library; this file only hands them to the scene.
 
+use std::sync::Arc;
+
 use super::MlodApp;
 use crate::detect::Case;
 use crate::eval::PredOutcome;
@@ -13,6 +15,7 @@ use crate::gui::state::{
     LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
 };
 use crate::gui::viewport::{box_lines, grid_lines, LineVertex};
+use crate::lyft::Frame;
 use crate::session::BoxLayer;
 
 impl MlodApp {
@@ -46,16 +49,49 @@ impl MlodApp {
             self.refuse_now(0.0, false);
         }
         self.loaded.detecting = true;
-        self.jobs.detect(DetectRequest {
+        self.jobs.detect(self.detect_request(frame, case, false));
+        self.run_compare();
+    }
+
+    /// A run of `case` on `frame` with the perturbation (and calibration) on screen, with the
+    /// already-loaded detector of that case if any.
+    pub(super) fn detect_request(&self, frame: Arc<Frame>, case: Case, compare: bool) -> DetectRequest {
+        DetectRequest {
             frame,
             params: self.session.fuse_params(),
             generation: self.loaded.fuse_generation,
             case,
             cached: self.detectors.get(&case).cloned(),
             models: self.models_dir.clone(),
-            compare: false,
+            compare,
+        }
+    }
+
+    /// A finished run's boxes matched against the ground truth, if its sample is still on screen;
+    /// the loaded detector is kept for the next run either way.
+    pub(super) fn matched_on_screen(
+        &mut self,
+        token: String,
+        generation: u64,
+        case: Case,
+        out: DetectOutput,
+        millis: f64,
+    ) -> Option<DetectionView> {
+        let frame = self.loaded.frame.as_deref().filter(|f| f.sample_token == token);
+        let view = frame.map(|frame| {
+            let raw = RawDetection {
+                case,
+                token,
+                generation,
+                detections: out.detections,
+                refined: out.refined,
+                categories: out.detector.categories(),
+                millis,
+            };
+            DetectionView::matched(raw, Some(frame), &self.session.detection)
         });
-        self.run_compare();
+        self.detectors.insert(case, out.detector);
+        view
     }
 
     /// A finished detector run: matched and drawn if its sample is still on screen; an error
@@ -72,29 +108,13 @@ impl MlodApp {
         self.loaded.detecting = false;
         match result {
             Ok(out) => {
-                let on_screen = self
-                    .loaded
-                    .frame
-                    .as_ref()
-                    .is_some_and(|f| f.sample_token == token);
-                if on_screen {
-                    let raw = RawDetection {
-                        case,
-                        token,
-                        generation,
-                        detections: out.detections,
-                        refined: out.refined,
-                        categories: out.detector.categories(),
-                        millis,
-                    };
-                    let frame = self.loaded.frame.as_deref();
-                    self.loaded.detection = Some(DetectionView::matched(raw, frame, &self.session.detection));
+                if let Some(view) = self.matched_on_screen(token, generation, case, out, millis) {
+                    self.loaded.detection = Some(view);
                     // A new run: indices of the old one mean nothing; the selection is found
                     // again by its object (this also redraws the lines and the highlight).
                     self.hovered_refined = None;
                     self.resolve_selection();
                 }
-                self.detectors.insert(case, out.detector);
             }
             Err(e) => {
                 self.detect_again = false;

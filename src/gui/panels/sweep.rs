@@ -8,23 +8,10 @@ use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke};
 
 use super::Panels;
 use crate::gui::state::SweepView;
-
-/// Ten distinguishable colours (matplotlib's tab10).
-const PALETTE: [[u8; 3]; 10] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
-    [227, 119, 194],
-    [127, 127, 127],
-    [188, 189, 34],
-    [23, 190, 207],
-];
+use crate::plot::TAB10;
 
 fn color(i: usize) -> Color32 {
-    let [r, g, b] = PALETTE[i % PALETTE.len()];
+    let [r, g, b] = TAB10[i % TAB10.len()];
     Color32::from_rgb(r, g, b)
 }
 
