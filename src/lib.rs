@@ -4,6 +4,14 @@
 //!
 //! Dependencies point one way: `gui` → `pipeline` → {`uncertainty`, …} → {`lyft`, `geometry`}.
 //! Nothing outside `gui` depends on egui, eframe or wgpu.
+//!
+//! No panic on data: the library denies `unwrap`, `expect` and `panic!` outside tests; each site
+//! that remains states with `#[allow]` and a comment why it cannot fail (an invariant the code
+//! itself established, never a property of a file or an argument). Indexing is not denied
+//! crate-wide (the per-point kernels index slices whose lengths they checked once up front); the
+//! parsers of outside data index only through `get`, and `fuzz/` searches them for panics.
+
+#![deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 pub mod calib;
 pub mod color;

@@ -3,6 +3,8 @@
 //! linearisation) together with the perturbation that was actually sampled, the colouring and the
 //! camera. Saved as pretty JSON, atomically; loading checks the version and every number.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 

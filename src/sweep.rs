@@ -13,6 +13,8 @@
 //! folder holding another configuration is refused, naming the setting that differs. `--shard
 //! i/n` runs every n-th group; [`merge`] unites shard folders into one.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -70,7 +72,8 @@ pub struct Unit {
 }
 
 impl Unit {
-    fn file(&self) -> String {
+    /// The unit's result file, inside the sweep folder's `units/`.
+    pub fn file(&self) -> String {
         format!("{}_a{}_t{}.json", self.case.as_str(), self.alpha, self.trial)
     }
 }
@@ -110,12 +113,19 @@ pub enum SweepError {
 /// `n` samples spread evenly over `all` (all of them if `n` is `None` or larger).
 pub fn spread_samples(all: &[String], n: Option<usize>) -> Vec<String> {
     match n {
-        Some(n) if n < all.len() => (0..n).map(|i| all[i * all.len() / n].clone()).collect(),
+        Some(n) if n < all.len() => (0..n)
+            .filter_map(|i| all.get(i * all.len() / n).cloned())
+            .collect(),
         _ => all.to_vec(),
     }
 }
 
 impl SweepConfig {
+    /// Most perturbation trials a sweep may ask for (the paper runs 10).
+    pub const MAX_TRIALS: usize = 10_000;
+    /// Most α values a sweep may list (the paper lists 4).
+    pub const MAX_ALPHAS: usize = 1_000;
+
     pub fn validate(&self) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::BadParameter(m));
         if self.cases.is_empty() || self.alphas.is_empty() || self.samples.is_empty() || self.trials == 0 {
@@ -131,8 +141,28 @@ impl SweepConfig {
                 "α must be in [0, 1] (the paper studies 0 to 0.1), got {a}"
             ));
         }
+        if self.trials > Self::MAX_TRIALS || self.alphas.len() > Self::MAX_ALPHAS {
+            return bad(format!(
+                "{} trials at {} α: at most {} trials and {} α (a folder's configuration decides \
+                 how many unit files are looked for)",
+                self.trials,
+                self.alphas.len(),
+                Self::MAX_TRIALS,
+                Self::MAX_ALPHAS
+            ));
+        }
+        if let Some(d) = self.drop_trace.filter(|d| !(d.is_finite() && *d > 0.0)) {
+            return bad(format!(
+                "the drop threshold must be a positive tr(Ξ) in m², got {d}"
+            ));
+        }
+        for (i, a) in self.alphas.iter().enumerate() {
+            if self.alphas.iter().take(i).any(|b| b == a) {
+                return bad(format!("α {a} is listed twice"));
+            }
+        }
         for (i, c) in self.cases.iter().enumerate() {
-            if self.cases[..i].contains(c) {
+            if self.cases.iter().take(i).any(|d| d == c) {
                 return bad(format!("case {c} is listed twice"));
             }
         }
@@ -356,14 +386,16 @@ fn detect_sample(
         } else {
             &drifted
         };
-        if let std::collections::hash_map::Entry::Vacant(e) = proposals.entry((base, oc)) {
-            let d = det
-                .stage1
-                .get(&base)
-                .ok_or_else(|| SweepError::BadParameter(format!("no detector for {base}")))?;
-            e.insert(d.detect_fused(&frame, cloud)?);
-        }
-        let props = &proposals[&(base, oc)];
+        let props = match proposals.entry((base, oc)) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let d = det
+                    .stage1
+                    .get(&base)
+                    .ok_or_else(|| SweepError::BadParameter(format!("no detector for {base}")))?;
+                e.insert(d.detect_fused(&frame, cloud)?)
+            }
+        };
         let dets = if case.is_mlod() {
             let r = det
                 .refiners
@@ -613,7 +645,7 @@ pub fn write_outputs(dir: &Path, cfg: &SweepConfig, rows: &[UnitResult]) -> Resu
     for (ci, case) in cfg.cases.iter().enumerate() {
         md.push_str(&format!("| {} |", case.paper_name()));
         for ai in 0..cfg.alphas.len() {
-            for cell in &summary[&(ci, ai)] {
+            for cell in summary.get(&(ci, ai)).into_iter().flatten() {
                 md.push_str(&format!(" {} |", fmt(cell)));
             }
         }
@@ -655,7 +687,7 @@ pub fn merge(out: &Path, shards: &[PathBuf]) -> Result<SweepConfig, SweepError> 
         .first()
         .ok_or_else(|| SweepError::Merge("no shard folders given".into()))?;
     let cfg = read_config(first)?;
-    for s in &shards[1..] {
+    for s in shards.iter().skip(1) {
         let c = read_config(s)?;
         if c != cfg {
             return Err(SweepError::Merge(format!(
@@ -684,13 +716,16 @@ pub fn merge(out: &Path, shards: &[PathBuf]) -> Result<SweepConfig, SweepError> 
             write_outputs(out, &cfg, &rows)?;
             Ok(cfg)
         }
-        Err(missing) => Err(SweepError::Merge(format!(
-            "{} units missing from the shards, e.g. {} at α {} trial {}",
-            missing.len(),
-            missing[0].case,
-            missing[0].alpha,
-            missing[0].trial
-        ))),
+        Err(missing) => Err(SweepError::Merge(match missing.first() {
+            Some(u) => format!(
+                "{} units missing from the shards, e.g. {} at α {} trial {}",
+                missing.len(),
+                u.case,
+                u.alpha,
+                u.trial
+            ),
+            None => "units missing from the shards".into(),
+        })),
     }
 }
 

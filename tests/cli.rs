@@ -999,6 +999,41 @@ fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
         sweep(sample, "input", "0.1", "0", gif),
         sweep(sample, "input,input", "0.1", "1", gif),
         vec!["eval", "--dataset", sample, "--case", "input", "--alpha", "1e9"],
+        vec!["fuse", "--dataset", sample, "--alpha", "nan"],
+        vec![
+            "fuse",
+            "--dataset",
+            sample,
+            "--alpha",
+            "0.1",
+            "--prior-alpha",
+            "-3",
+        ],
+        vec!["export", "--dataset", sample, "--alpha", "-0.5", "--out", gif],
+        vec!["calibrate", "--dataset", sample, "--alpha", "inf"],
+        vec!["detect", "--dataset", sample, "--case", "top", "--alpha", "1.5"],
+        vec![
+            "detect",
+            "--dataset",
+            sample,
+            "--case",
+            "input",
+            "--drop-trace",
+            "nan",
+        ],
+        vec!["table1", "--dataset", sample, "--cases", "top", "--alpha", "-1"],
+        vec!["propagate", "--example", "--alpha", "1e308"],
+        vec![
+            "sweep",
+            "--dataset",
+            sample,
+            "--cases",
+            "top",
+            "--trials",
+            "100000000",
+            "--out",
+            gif,
+        ],
     ];
     for args in &cases {
         let out = mlod(args);
@@ -1008,4 +1043,171 @@ fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
         assert!(!err.trim().is_empty(), "{args:?} gave no message");
     }
     assert!(!out_gif.exists(), "nothing written");
+}
+
+/// A folder for one test's files, removed on drop.
+struct Scratch(std::path::PathBuf);
+
+impl Scratch {
+    fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("mlod-cli-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).expect("scratch");
+        Self(d)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// sample_data's tables as JSON values, by table name.
+fn sample_tables() -> std::collections::BTreeMap<String, serde_json::Value> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data/v1.01-train");
+    mlod::lyft::tables::TABLE_NAMES
+        .iter()
+        .map(|t| {
+            let bytes = std::fs::read(dir.join(format!("{t}.json"))).expect("table");
+            (t.to_string(), serde_json::from_slice(&bytes).expect("JSON"))
+        })
+        .collect()
+}
+
+fn write_tables(root: &std::path::Path, tables: &std::collections::BTreeMap<String, serde_json::Value>) {
+    let v = root.join("v1.01-train");
+    std::fs::create_dir_all(&v).expect("version folder");
+    for (t, rows) in tables {
+        std::fs::write(
+            v.join(format!("{t}.json")),
+            serde_json::to_vec(rows).expect("JSON"),
+        )
+        .expect("table");
+    }
+}
+
+/// What the program does with absurd data rather than absurd arguments: an empty dataset, LiDAR
+/// files of 0 points, and a dataset of 10 000 samples of which one `.bin` is broken. Each either
+/// succeeds (0 points is a LiDAR that saw nothing) or fails with a message; never a panic.
+#[test]
+fn absurd_datasets_fail_cleanly_or_work() {
+    let s = Scratch::new("absurd-data");
+    let ok_or_message = |args: &[&str], must_fail: bool, needle: &str| {
+        let out = mlod(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        if must_fail {
+            assert!(!out.status.success(), "{args:?} should fail");
+            assert!(
+                err.contains(needle),
+                "{args:?}: the message does not name {needle}: {err}"
+            );
+        }
+        out
+    };
+
+    // Empty: every table an empty list.
+    let empty = s.0.join("empty");
+    let mut tables = sample_tables();
+    for rows in tables.values_mut() {
+        *rows = serde_json::json!([]);
+    }
+    write_tables(&empty, &tables);
+    let e = empty.to_str().expect("utf-8");
+    for args in [
+        vec!["fuse", "--dataset", e],
+        vec!["detect", "--dataset", e, "--case", "top"],
+        vec!["eval", "--dataset", e, "--case", "top"],
+        vec!["table1", "--dataset", e, "--cases", "top"],
+        vec!["failures", "--dataset", e, "--case", "input"],
+        vec!["sweep", "--dataset", e, "--cases", "top", "--out", e],
+    ] {
+        ok_or_message(&args, true, "sample");
+    }
+
+    // Zero points: sample_data's tables over empty .bin files.
+    let zero = s.0.join("zero");
+    write_tables(&zero, &sample_tables());
+    std::fs::create_dir_all(zero.join("lidar")).expect("lidar folder");
+    let lidar = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data/lidar");
+    for f in std::fs::read_dir(lidar).expect("lidar").flatten() {
+        std::fs::write(zero.join("lidar").join(f.file_name()), b"").expect("empty bin");
+    }
+    let z = zero.to_str().expect("utf-8");
+    for args in [
+        vec!["fuse", "--dataset", z, "--alpha", "0.1"],
+        vec!["detect", "--dataset", z, "--case", "mlod-i", "--alpha", "0.1"],
+        vec!["calibrate", "--dataset", z, "--alpha", "0.1"],
+        vec!["eval", "--dataset", z, "--case", "input", "--samples", "2"],
+    ] {
+        ok_or_message(&args, false, "");
+    }
+
+    // 10 000 samples, one of them with a truncated LIDAR_TOP file.
+    let big = s.0.join("big");
+    let mut tables = sample_tables();
+    let first = tables["sample"][0].clone();
+    let token = first["token"].as_str().expect("token").to_owned();
+    let rows: Vec<serde_json::Value> = tables["sample_data"]
+        .as_array()
+        .expect("rows")
+        .iter()
+        .filter(|r| r["sample_token"] == token.as_str())
+        .cloned()
+        .collect();
+    let mut samples = Vec::new();
+    let mut data = Vec::new();
+    for i in 0..10_000 {
+        let t = format!("{i:064x}");
+        let mut smp = first.clone();
+        smp["token"] = t.clone().into();
+        smp["prev"] = "".into();
+        smp["next"] = "".into();
+        samples.push(smp);
+        for (k, r) in rows.iter().enumerate() {
+            let mut r = r.clone();
+            r["token"] = format!("{i:060x}{k:04x}").into();
+            r["sample_token"] = t.clone().into();
+            r["prev"] = "".into();
+            r["next"] = "".into();
+            if i == 7_777
+                && r["filename"]
+                    .as_str()
+                    .is_some_and(|f| f.contains("lidar1") || f.contains("lidar0"))
+            {
+                r["filename"] = "lidar/broken.bin".into();
+            }
+            data.push(r);
+        }
+    }
+    tables.insert("sample".into(), samples.into());
+    tables.insert("sample_data".into(), data.into());
+    tables.insert("sample_annotation".into(), serde_json::json!([]));
+    write_tables(&big, &tables);
+    std::fs::create_dir_all(big.join("lidar")).expect("lidar folder");
+    for f in std::fs::read_dir(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data/lidar"))
+        .expect("lidar")
+        .flatten()
+    {
+        std::fs::copy(f.path(), big.join("lidar").join(f.file_name())).expect("copy bin");
+    }
+    std::fs::write(big.join("lidar/broken.bin"), [0u8; 33]).expect("broken bin");
+    let b = big.to_str().expect("utf-8");
+    let broken = format!("{:064x}", 7_777);
+    let listed = ok_or_message(&["inspect", "--dataset", b, "--list"], false, "");
+    assert!(
+        listed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&listed.stderr)
+    );
+    ok_or_message(&["fuse", "--dataset", b, "--sample", &broken], true, "broken.bin");
+    ok_or_message(
+        &["detect", "--dataset", b, "--sample", &broken, "--case", "top"],
+        true,
+        "broken.bin",
+    );
+    let fine = format!("{:064x}", 7_778);
+    let out = ok_or_message(&["fuse", "--dataset", b, "--sample", &fine], false, "");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }

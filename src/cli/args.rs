@@ -26,6 +26,17 @@ pub fn parse_unit(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+/// A tr(Ξ) threshold (m²): finite and positive.
+pub fn parse_trace_threshold(s: &str) -> Result<f32, String> {
+    let v = parse_f64(s)?;
+    if v <= 0.0 || v > f64::from(f32::MAX) {
+        return Err(format!(
+            "a tr(Ξ) threshold must be a positive number of m², got {v}"
+        ));
+    }
+    Ok(v as f32)
+}
+
 pub fn parse_alpha(s: &str) -> Result<f64, String> {
     let a = parse_f64(s)?;
     if !(0.0..=1.0).contains(&a) {

@@ -37,7 +37,7 @@ pub struct DetectorRun {
     pub oc_prior: mlod::calib::OcPrior,
     /// `input-drop`: points with tr(Ξ) above this (m²) are removed before Input Fusion (default:
     /// the threshold chosen on the validation scenes).
-    #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE)]
+    #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
 }
 

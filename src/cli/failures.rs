@@ -63,6 +63,12 @@ pub fn run(a: FailuresArgs) -> Result<()> {
         None => all.iter().map(|s| s.sample_token.clone()).collect(),
     };
     let tokens = mlod::sweep::spread_samples(&chosen, a.samples);
+    if tokens.is_empty() {
+        bail!(
+            "{}: no samples to scan (its sample table is empty)",
+            a.dataset.display()
+        );
+    }
     let cfg = ScanConfig {
         case: a.case,
         params: a.run.fuse_params()?,

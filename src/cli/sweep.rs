@@ -49,7 +49,7 @@ pub struct SweepArgs {
     pub assumed_alpha: Option<f64>,
     /// `input-drop`: the tr(Ξ) threshold (m²) above which points are removed (default: the one
     /// chosen on the validation scenes).
-    #[arg(long)]
+    #[arg(long, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: Option<f32>,
     /// Models folder with manifest.json (default: assets/models).
     #[arg(long)]

@@ -8,6 +8,8 @@
 //! weights always give the same bytes. Reading hashes the bytes first; a checksum that differs from
 //! the manifest, a truncated file or a bad header is a [`DetectError`] naming the file.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 

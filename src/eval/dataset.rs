@@ -11,6 +11,8 @@
 //! global-frame records as given; KITTI AP_3D and the per-box outcomes run in the base frame
 //! (LIDAR_TOP), where the paper measures distances.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
@@ -37,6 +39,10 @@ pub enum EvalError {
     },
     #[error("predictions {path}: expected a JSON list of boxes (or an object with a \"results\" list)")]
     NotAList { path: PathBuf },
+    #[error(
+        "dataset {dataset}: no samples to evaluate (its sample table is empty, or the selection left none)"
+    )]
+    NoSamples { dataset: PathBuf },
     #[error(transparent)]
     Lyft(#[from] LyftError),
 }
@@ -60,6 +66,8 @@ pub struct PredictionSet {
 
 /// Replace the non-JSON literals `NaN`, `Infinity` and `-Infinity` outside strings by `null`,
 /// so a file written by Python's `json.dump` parses and its bad fields can be named.
+// `i` is checked against `b.len()` by the loop before every index and slice.
+#[allow(clippy::indexing_slicing)]
 fn sanitize_non_finite(text: &str) -> String {
     let b = text.as_bytes();
     let mut out = String::with_capacity(text.len());
@@ -138,8 +146,8 @@ fn numbers<const N: usize>(v: &Value, field: &str) -> Result<[f64; N], String> {
         return Err(format!("{field} has {} elements, expected {N}", arr.len()));
     }
     let mut out = [0.0; N];
-    for (k, x) in arr.iter().enumerate() {
-        out[k] = x
+    for (k, (o, x)) in out.iter_mut().zip(arr).enumerate() {
+        *o = x
             .as_f64()
             .filter(|x| x.is_finite())
             .ok_or_else(|| format!("{field}[{k}] is not a finite number ({x})"))?;
@@ -166,8 +174,8 @@ fn parse_one(v: &Value, known: &HashSet<&str>) -> Result<LyftBox, (Option<String
     }
     let translation = numbers::<3>(v, "translation").map_err(fail)?;
     let size = numbers::<3>(v, "size").map_err(fail)?;
-    if let Some(k) = size.iter().position(|&s| s <= 0.0) {
-        return Err(fail(format!("size[{k}] = {} is not positive", size[k])));
+    if let Some((k, s)) = size.iter().enumerate().find(|(_, &s)| s <= 0.0) {
+        return Err(fail(format!("size[{k}] = {s} is not positive")));
     }
     let rotation = numbers::<4>(v, "rotation").map_err(fail)?;
     let norm = rotation.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -373,6 +381,11 @@ pub fn sample_tokens(dataset: &Dataset, opts: &EvalOptions) -> Vec<String> {
 /// Ground truth of every evaluated sample.
 fn truths(dataset: &Dataset, opts: &EvalOptions) -> Result<Vec<SampleTruth>, EvalError> {
     let tokens = evaluated_tokens(dataset, opts);
+    if tokens.is_empty() {
+        return Err(EvalError::NoSamples {
+            dataset: dataset.root().to_path_buf(),
+        });
+    }
     Ok(tokens
         .iter()
         .map(|t| truth(dataset, t))
@@ -597,12 +610,13 @@ pub fn recall_by_range(per_box: &[SampleReport], category: &str, bands: &[f64]) 
         let Some(b) = bands.iter().position(|&edge| g.range < edge) else {
             continue;
         };
+        let Some(slot) = out.get_mut(b) else { continue };
         match g.outcome {
             GtOutcome::Matched { .. } => {
-                out[b].0 += 1;
-                out[b].1 += 1;
+                slot.0 += 1;
+                slot.1 += 1;
             }
-            GtOutcome::Missed => out[b].0 += 1,
+            GtOutcome::Missed => slot.0 += 1,
             GtOutcome::Ignored => {}
         }
     }

@@ -10,6 +10,8 @@
 //! sample still loads. Filenames from the tables are resolved with [`Dataset::resolve`], which
 //! rejects absolute paths and `..`.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::{HashMap, HashSet};
 use std::path::{Component, Path, PathBuf};
 
@@ -322,6 +324,9 @@ fn find_version_dir(path: &Path) -> Result<PathBuf, LyftError> {
 /// Sample positions in scene order: scenes in file order, each scene's `first_sample_token` →
 /// `next` chain, then the scene's samples the chain missed by timestamp; last, samples whose
 /// scene is unknown, by timestamp. Each sample appears once; cycles end a chain.
+// Every index is a position in `samples` (from `enumerate`, `Table::position` or `get`), and
+// `placed` has the same length.
+#[allow(clippy::indexing_slicing)]
 fn scene_order(t: &Tables) -> Vec<usize> {
     let samples = t.sample.rows();
     let mut placed = vec![false; samples.len()];

@@ -16,6 +16,8 @@
 //!   then the heading of the rotated box x axis, atan2(R₁₀, R₀₀) (the devkits' `quaternion_yaw`).
 //!   The full base-frame quaternion is kept in [`GtBox::rotation`] for other conventions.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::path::PathBuf;
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
@@ -325,6 +327,8 @@ impl Dataset {
                 ));
                 continue;
             };
+            // `found` has one slot per `LidarChannel` variant, so the discriminant is in bounds.
+            #[allow(clippy::indexing_slicing)]
             let slot = &mut found[channel as usize];
             if let Some((first, _)) = slot {
                 return Err(LyftError::DuplicateLidar {

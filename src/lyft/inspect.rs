@@ -7,6 +7,8 @@
 //! of the JSON), so the CLI can print the boxes and still exit non-zero naming the missing files —
 //! which is what happens on the real Lyft table excerpt, whose `.bin` files are not shipped.
 
+#![deny(clippy::indexing_slicing)]
+
 use serde::Serialize;
 
 use super::dataset::{Dataset, SampleSummary};

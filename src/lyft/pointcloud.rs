@@ -8,6 +8,8 @@
 //! integer stored as a float), so a file without non-finite points is written back byte-identically
 //! by [`encode_bin`].
 
+#![deny(clippy::indexing_slicing)]
+
 use std::path::Path;
 
 use super::error::LyftError;
@@ -91,8 +93,13 @@ pub fn parse_bin(bytes: &[u8], path: &Path, opts: LoadOptions) -> Result<PointCl
     let mut cloud = PointCloud::with_capacity(chunks.len());
     cloud.trimmed_bytes = tail;
     for p in chunks {
-        let f = |k: usize| f32::from_le_bytes([p[k], p[k + 1], p[k + 2], p[k + 3]]);
-        let (x, y, z, i, r) = (f(0), f(4), f(8), f(12), f(16));
+        let mut v = [0f32; 5];
+        for (d, w) in v.iter_mut().zip(p.chunks_exact(4)) {
+            if let [a, b, c, e] = *w {
+                *d = f32::from_le_bytes([a, b, c, e]);
+            }
+        }
+        let [x, y, z, i, r] = v;
         if x.is_finite() && y.is_finite() && z.is_finite() && i.is_finite() && r.is_finite() {
             cloud.push(x, y, z, i, r);
         } else {

@@ -15,6 +15,8 @@
 //! and [`write_table`] writes what Python's `json.dump` writes (`", "` and `": "` separators,
 //! Python float repr, ASCII only, one line, trailing newline), so written files look like real ones.
 
+#![deny(clippy::indexing_slicing)]
+
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;

@@ -11,6 +11,8 @@
 //! an optional 3D-IoU NMS follows. A proposal without a single point keeps its box and its stage-1
 //! score (the network has nothing to look at). Proposals of other categories pass through.
 
+#![deny(clippy::indexing_slicing)]
+
 use crate::calib::{IcpConfig, OcPrior};
 use crate::detect::oc::OcDetector;
 use std::path::Path;
@@ -219,6 +221,9 @@ impl Refiner {
     }
 
     /// [`Self::refine`] with an index the caller built.
+    // `mine` holds positions in `proposals`; `inputs` is `mine` mapped, so `k_mine` indexes both;
+    // `pts.index` is indexed by the sampler's picks, which are positions in `pts`.
+    #[allow(clippy::indexing_slicing)]
     pub fn refine_indexed(
         &self,
         cloud: &FusedCloud,
