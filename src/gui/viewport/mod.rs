@@ -58,6 +58,7 @@ pub use camera::{Camera, Projection, View};
 pub use offscreen::{render_offscreen, HeadlessGpu, OffscreenRenderer};
 pub use scene::{box_lines, grid_lines, LineVertex, SceneHandle};
 
+pub use renderer::GpuUsage;
 use renderer::{EguiPass, FrameParams, PointSource, SceneRenderer, ViewportCallback, ViewportResources};
 
 /// MSAA of the offscreen targets (screenshots), and of the window's on a real GPU.
@@ -173,6 +174,15 @@ pub fn install_with(render_state: &egui_wgpu::RenderState, options: InstallOptio
         .write()
         .callback_resources
         .insert(ViewportResources(renderer));
+}
+
+/// What the viewport renderer holds on the GPU of `render_state`; `None` before [`install`].
+pub fn gpu_usage(render_state: &egui_wgpu::RenderState) -> Option<GpuUsage> {
+    let renderer = render_state.renderer.read();
+    renderer
+        .callback_resources
+        .get::<ViewportResources>()
+        .map(|ViewportResources(r)| r.usage())
 }
 
 /// What [`show`] hands back.

@@ -108,6 +108,17 @@ impl FrameParams {
     }
 }
 
+/// What the viewport holds on the GPU ([`super::gpu_usage`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GpuUsage {
+    /// Scenes with buffers (evicted after a while unused).
+    pub scenes: usize,
+    /// Offscreen render targets (one per viewport, evicted likewise).
+    pub targets: usize,
+    /// Bytes of the scenes' point, colour and line buffers.
+    pub buffer_bytes: u64,
+}
+
 /// A GPU buffer that grows on demand (to the next power of two) and is rewritten in place.
 struct GrowBuffer {
     label: &'static str,
@@ -597,6 +608,21 @@ impl SceneRenderer {
     }
 
     /// Uploads what changed, (re)creates the target, and records the view's render pass.
+    /// Scenes and render targets held, and the bytes of their GPU buffers and textures' colour
+    /// attachments (what a soak watches for growth).
+    pub(crate) fn usage(&self) -> GpuUsage {
+        let bytes = |b: &GrowBuffer| b.buffer.as_ref().map_or(0, |b| b.size());
+        GpuUsage {
+            scenes: self.scenes.len(),
+            targets: self.targets.len(),
+            buffer_bytes: self
+                .scenes
+                .values()
+                .map(|s| bytes(&s.positions) + bytes(&s.colors) + bytes(&s.lines))
+                .sum(),
+        }
+    }
+
     /// Returns `None` (draws nothing) for an empty target size.
     pub(crate) fn render(
         &mut self,
