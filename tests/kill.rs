@@ -24,12 +24,13 @@ fn scratch(tag: &str) -> PathBuf {
     d
 }
 
-fn run(args: &[&str]) -> Duration {
+fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Duration {
     let t = Instant::now();
     let out = Command::new(MLOD).args(args).output().expect("run mlod");
+    let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy()).collect();
     assert!(
         out.status.success(),
-        "mlod {args:?}: {}",
+        "mlod {shown:?}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     t.elapsed()
@@ -52,6 +53,22 @@ fn kill_after(mut cmd: Command, after: Duration) -> bool {
     child.kill().expect("SIGKILL");
     child.wait().expect("reap");
     true
+}
+
+/// Runs `mlod args` `n` times, each killed at one of `kill_points(total, n, seed)`, and calls
+/// `check` after each; at least one run must have been killed.
+fn kill_repeatedly(args: &[String], total: Duration, n: usize, seed: u64, check: impl Fn()) {
+    let mut killed = 0;
+    for at in kill_points(total, n, seed) {
+        let mut cmd = Command::new(MLOD);
+        cmd.args(args);
+        killed += usize::from(kill_after(cmd, at));
+        check();
+    }
+    assert!(
+        killed > 0,
+        "no run was killed (the machine is too fast for these kill points)"
+    );
 }
 
 /// `n` kill points spread over `total`, each jittered by a seeded LCG (printed, so a failure can
@@ -132,22 +149,13 @@ fn a_killed_synth_leaves_only_complete_files_and_a_rerun_equals_an_uninterrupted
         ]
     };
     let a = d.join("a");
-    let a_args = args(&a);
-    let total = run(&a_args.iter().map(String::as_str).collect::<Vec<_>>());
+    let total = run(&args(&a));
     let want = files(&a);
     let b = d.join("b");
-    let mut killed = 0;
-    for at in kill_points(total, 6, 21) {
-        let mut cmd = Command::new(MLOD);
-        cmd.args(args(&b));
-        killed += usize::from(kill_after(cmd, at));
+    kill_repeatedly(&args(&b), total, 6, 21, || {
         assert_prefix_of(&files(&b), &want, "killed synth");
-    }
-    assert!(
-        killed > 0,
-        "no run was killed (the machine is too fast for these kill points)"
-    );
-    run(&args(&b).iter().map(String::as_str).collect::<Vec<_>>());
+    });
+    run(&args(&b));
     assert!(
         files(&b) == want,
         "a rerun after kills differs from an uninterrupted run"
@@ -195,14 +203,10 @@ fn a_killed_training_resumes_bit_identical() {
         v
     };
     let a = d.join("a");
-    let total = run(&args(&a, false).iter().map(String::as_str).collect::<Vec<_>>());
+    let total = run(&args(&a, false));
     let want = std::fs::read(a.join("top.safetensors")).expect("weights");
     let b = d.join("b");
-    let mut killed = 0;
-    for at in kill_points(total, 4, 33) {
-        let mut cmd = Command::new(MLOD);
-        cmd.args(args(&b, true));
-        killed += usize::from(kill_after(cmd, at));
+    kill_repeatedly(&args(&b, true), total, 4, 33, || {
         // The checkpoint, if there is one yet, is a complete safetensors file.
         let ck = b.join("top.ckpt.safetensors");
         if ck.exists() {
@@ -211,9 +215,8 @@ fn a_killed_training_resumes_bit_identical() {
         if let Ok(w) = std::fs::read(b.join("top.safetensors")) {
             assert!(w == want, "final weights written by a killed run differ");
         }
-    }
-    assert!(killed > 0, "no run was killed");
-    run(&args(&b, true).iter().map(String::as_str).collect::<Vec<_>>());
+    });
+    run(&args(&b, true));
     let got = std::fs::read(b.join("top.safetensors")).expect("weights");
     assert!(got == want, "resumed training differs from an uninterrupted one");
     let _ = std::fs::remove_dir_all(&d);
@@ -241,18 +244,13 @@ fn a_killed_sweep_resumes_to_the_same_results_and_an_eval_out_is_old_or_new() {
         ]
     };
     let a = d.join("a");
-    let total = run(&args(&a).iter().map(String::as_str).collect::<Vec<_>>());
+    let total = run(&args(&a));
     let want = files(&a);
     let b = d.join("b");
-    let mut killed = 0;
-    for at in kill_points(total, 4, 47) {
-        let mut cmd = Command::new(MLOD);
-        cmd.args(args(&b));
-        killed += usize::from(kill_after(cmd, at));
+    kill_repeatedly(&args(&b), total, 4, 47, || {
         assert_prefix_of(&files(&b), &want, "killed sweep");
-    }
-    assert!(killed > 0, "no run was killed");
-    run(&args(&b).iter().map(String::as_str).collect::<Vec<_>>());
+    });
+    run(&args(&b));
     assert!(
         files(&b) == want,
         "a resumed sweep differs from an uninterrupted one"
@@ -274,9 +272,9 @@ fn a_killed_sweep_resumes_to_the_same_results_and_an_eval_out_is_old_or_new() {
             out.to_str().expect("utf-8").into(),
         ]
     };
-    run(&eval("1").iter().map(String::as_str).collect::<Vec<_>>());
+    run(&eval("1"));
     let old = std::fs::read(&out).expect("old report");
-    let total = run(&eval("2").iter().map(String::as_str).collect::<Vec<_>>());
+    let total = run(&eval("2"));
     let new = std::fs::read(&out).expect("new report");
     assert!(old != new);
     for at in kill_points(total, 8, 59) {
