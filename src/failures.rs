@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::detect::{Case, DetectError, Detection, Detector};
-use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
+use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::IouKind;
 use crate::lyft::Dataset;
 use crate::pipeline::FuseParams;
@@ -116,9 +116,7 @@ fn outcomes(
     rule: &MatchRule,
     min_score: f32,
 ) -> (Vec<Option<f64>>, Vec<usize>) {
-    let shown: Vec<usize> = (0..dets.len()).filter(|&i| dets[i].score >= min_score).collect();
-    let drawn: Vec<Detection> = shown.iter().map(|&i| dets[i].clone()).collect();
-    let m = match_sample(&drawn, gts, rule);
+    let m = match_drawn(dets, gts, rule, min_score, |_| true);
     let ious = m
         .gts
         .iter()
@@ -130,9 +128,9 @@ fn outcomes(
     let fps = m
         .preds
         .iter()
-        .zip(&shown)
-        .filter(|(o, _)| matches!(o, PredOutcome::FalsePositive { .. }))
-        .map(|(_, &i)| i)
+        .enumerate()
+        .filter(|(_, o)| matches!(o, PredOutcome::FalsePositive { .. }))
+        .map(|(i, _)| i)
         .collect();
     (ious, fps)
 }

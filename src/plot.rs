@@ -208,6 +208,24 @@ pub fn histogram_png(
 
 /// Ten distinguishable colours (matplotlib's tab10): the sweep plot's curves, here and in the
 /// window.
+/// How each of a plot's series is drawn: its colour (an index into [`TAB10`], one per family) and
+/// whether it is dashed. A series labelled "X (OC)" is dashed in the colour of "X"; families are
+/// numbered in the order they first appear. The sweep PNG and the sweep window both use this.
+pub fn series_styles<'a>(labels: impl IntoIterator<Item = &'a str>) -> Vec<(usize, bool)> {
+    let mut families: Vec<&str> = Vec::new();
+    labels
+        .into_iter()
+        .map(|label| {
+            let family = label.strip_suffix(" (OC)").unwrap_or(label);
+            let k = families.iter().position(|f| *f == family).unwrap_or_else(|| {
+                families.push(family);
+                families.len() - 1
+            });
+            (k, family.len() != label.len())
+        })
+        .collect()
+}
+
 pub const TAB10: [[u8; 3]; 10] = [
     [31, 119, 180],
     [255, 127, 14],
@@ -269,15 +287,8 @@ pub fn curves_with_error_bars_png(
             .axis_desc_style(("sans-serif", 17))
             .draw()
             .map_err(draw_err)?;
-        // A series labelled "X (OC)" is drawn dashed in the colour of "X" (one colour per family).
-        let mut families: Vec<&str> = Vec::new();
-        for (label, p) in series {
-            let family = label.strip_suffix(" (OC)").unwrap_or(label);
-            let dashed = family.len() != label.len();
-            let k = families.iter().position(|f| *f == family).unwrap_or_else(|| {
-                families.push(family);
-                families.len() - 1
-            });
+        let styles = series_styles(series.iter().map(|(l, _)| l.as_str()));
+        for ((label, p), (k, dashed)) in series.iter().zip(styles) {
             let color = palette[k % palette.len()];
             let line: Vec<(f64, f64)> = p.iter().map(|&(x, m, _)| (x, m)).collect();
             // Legend marks are drawn relative to the legend entry's anchor.
@@ -330,4 +341,19 @@ pub fn curves_with_error_bars_png(
         root.present().map_err(draw_err)?;
     }
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn an_oc_series_is_dashed_in_its_family_colour() {
+        let styles = super::series_styles([
+            "Input Fusion",
+            "MLOD-I",
+            "MLOD-I (OC)",
+            "Input Fusion (OC)",
+            "LiDAR-Top",
+        ]);
+        assert_eq!(styles, [(0, false), (1, false), (1, true), (0, true), (2, false)]);
+    }
 }

@@ -1520,7 +1520,8 @@ fn soak_browse_1000_samples_and_10000_alpha_moves() {
             h.get_by_label("Run (D)").click();
             runs += 1;
         }
-        h.run_steps(1);
+        // A click acts on the next frame; the synchronous run lands on the one after.
+        h.run_steps(if step % 50 == 0 { 3 } else { 1 });
         if step % 50 == 0 {
             let token = h.state().frame().map(|f| f.sample_token.clone());
             let ran = h.state().detection().map(|(v, _)| v.token.clone());

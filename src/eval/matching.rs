@@ -170,6 +170,45 @@ pub fn match_sample(preds: &[Detection], gts: &[Detection], rule: &MatchRule) ->
     out
 }
 
+/// What a viewer matches: only the predictions scoring at least `min_score` (the boxes drawn)
+/// against only the ground truth `keep` accepts (e.g. the detector's categories). Outcomes are
+/// indexed like `preds` and `gts`; the others are `Ignored`.
+pub fn match_drawn(
+    preds: &[Detection],
+    gts: &[Detection],
+    rule: &MatchRule,
+    min_score: f32,
+    keep: impl Fn(&Detection) -> bool,
+) -> SampleMatch {
+    let kept: Vec<usize> = (0..preds.len())
+        .filter(|&i| preds[i].score >= min_score)
+        .collect();
+    let drawn: Vec<Detection> = kept.iter().map(|&i| preds[i].clone()).collect();
+    let known: Vec<usize> = (0..gts.len()).filter(|&j| keep(&gts[j])).collect();
+    let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
+    let m = match_sample(&drawn, &known_gts, rule);
+    let mut out = SampleMatch {
+        preds: vec![PredOutcome::Ignored; preds.len()],
+        gts: vec![GtOutcome::Ignored; gts.len()],
+    };
+    for (&i, o) in kept.iter().zip(m.preds) {
+        out.preds[i] = match o {
+            PredOutcome::TruePositive { gt, iou } => PredOutcome::TruePositive { gt: known[gt], iou },
+            other => other,
+        };
+    }
+    for (&j, g) in known.iter().zip(m.gts) {
+        out.gts[j] = match g {
+            GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
+                pred: kept[pred],
+                iou,
+            },
+            other => other,
+        };
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,6 +220,22 @@ mod tests {
             score,
             category: cat.into(),
         }
+    }
+
+    #[test]
+    fn match_drawn_ignores_undrawn_boxes_and_kept_out_truth_and_keeps_indices() {
+        let gts = [det(0.0, 15.0, 1.0, "truck"), det(10.0, 0.0, 1.0, "car")];
+        let preds = [
+            det(30.0, 0.0, 0.9, "car"),  // drawn, nothing there
+            det(10.0, 0.0, 0.1, "car"),  // below min score: not drawn
+            det(10.0, 0.05, 0.8, "car"), // drawn, on gt 1
+        ];
+        let m = match_drawn(&preds, &gts, &MatchRule::default(), 0.3, |g| g.category == "car");
+        assert!(matches!(m.preds[0], PredOutcome::FalsePositive { .. }));
+        assert_eq!(m.preds[1], PredOutcome::Ignored);
+        assert!(matches!(m.preds[2], PredOutcome::TruePositive { gt: 1, .. }));
+        assert_eq!(m.gts[0], GtOutcome::Ignored);
+        assert!(matches!(m.gts[1], GtOutcome::Matched { pred: 2, .. }));
     }
 
     #[test]

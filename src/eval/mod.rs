@@ -18,4 +18,4 @@ pub use dataset::{
 pub use kitti::{kitti_ap, KittiConfig, SampleBoxes};
 pub use localization::{with_truth, BoxError, Fix, LocalizationSummary};
 pub use lyft::{lyft_iou, lyft_map, Footprints, LyftBox, LyftMap};
-pub use matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
+pub use matching::{match_drawn, match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};

@@ -13,7 +13,7 @@ use egui::{Color32, RichText};
 
 use super::viewport::{Camera, Projection, View};
 use crate::detect::{Case, Detection};
-use crate::eval::{match_sample, GtOutcome, MatchRule, PredOutcome};
+use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::{iou_3d, IouKind};
 use crate::inspect::{PointsInside, PredictionDetails};
 use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
@@ -429,34 +429,10 @@ fn match_layer(
         kind: IouKind::ThreeD,
         max_range: f64::INFINITY,
     };
-    let kept: Vec<usize> = (0..detections.len())
-        .filter(|&i| detections[i].score >= settings.min_score)
-        .collect();
-    let shown: Vec<Detection> = kept.iter().map(|&i| detections[i].clone()).collect();
-    let known: Vec<usize> = (0..gts.len())
-        .filter(|&j| categories.contains(&gts[j].category))
-        .collect();
-    let known_gts: Vec<Detection> = known.iter().map(|&j| gts[j].clone()).collect();
-    let m = match_sample(&shown, &known_gts, &rule);
-    // Back to the frame's ground-truth indices and the run's detection indices.
-    let mut outcomes = vec![PredOutcome::Ignored; detections.len()];
-    for (k, o) in kept.iter().zip(m.preds) {
-        outcomes[*k] = match o {
-            PredOutcome::TruePositive { gt, iou } => PredOutcome::TruePositive { gt: known[gt], iou },
-            other => other,
-        };
-    }
-    let mut gt_outcomes = vec![GtOutcome::Ignored; gts.len()];
-    for (&j, g) in known.iter().zip(m.gts) {
-        gt_outcomes[j] = match g {
-            GtOutcome::Matched { pred, iou } => GtOutcome::Matched {
-                pred: kept[pred],
-                iou,
-            },
-            other => other,
-        };
-    }
-    (outcomes, gt_outcomes)
+    let m = match_drawn(detections, gts, &rule, settings.min_score, |g| {
+        categories.contains(&g.category)
+    });
+    (m.preds, m.gts)
 }
 
 fn count_layer(

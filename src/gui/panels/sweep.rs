@@ -8,28 +8,17 @@ use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke};
 
 use super::Panels;
 use crate::gui::state::SweepView;
-use crate::plot::TAB10;
+use crate::plot::{series_styles, TAB10};
 
-fn color(i: usize) -> Color32 {
-    let [r, g, b] = TAB10[i % TAB10.len()];
-    Color32::from_rgb(r, g, b)
-}
-
-/// A curve's colour: one per case without its (OC) (an (OC) case is drawn dashed in its case's
-/// colour), in the order the sweep lists them.
-fn case_color(prog: &crate::sweep::SweepProgress, i: usize) -> Color32 {
-    let cases = &prog.config.cases;
-    let Some(me) = cases.get(i).map(|c| c.without_oc()) else {
-        return color(i);
-    };
-    let mut seen: Vec<crate::detect::Case> = Vec::new();
-    for c in cases {
-        let c = c.without_oc();
-        if !seen.contains(&c) {
-            seen.push(c);
-        }
-    }
-    color(seen.iter().position(|c| *c == me).unwrap_or(i))
+/// Each curve's colour and whether it is dashed, as the folder's `ap_vs_alpha.png` draws it.
+fn curve_styles(prog: &crate::sweep::SweepProgress) -> Vec<(Color32, bool)> {
+    series_styles(prog.curves.iter().map(|(name, _)| name.as_str()))
+        .into_iter()
+        .map(|(k, dashed)| {
+            let [r, g, b] = TAB10[k % TAB10.len()];
+            (Color32::from_rgb(r, g, b), dashed)
+        })
+        .collect()
 }
 
 /// The sweep window, while a sweep is open.
@@ -125,9 +114,8 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
     // Curves, error bars with caps, points; the nearest point to the pointer for the tooltip.
     let pointer = resp.hover_pos();
     let mut nearest: Option<(f32, usize, (f64, f64, f64))> = None;
-    for (i, (_, points)) in prog.curves.iter().enumerate() {
-        let c = case_color(prog, i);
-        let oc = prog.config.cases.get(i).is_some_and(|c| c.is_oc());
+    let styles = curve_styles(prog);
+    for (i, ((_, points), &(c, oc))) in prog.curves.iter().zip(&styles).enumerate() {
         let screen: Vec<Pos2> = points.iter().map(|&(a, m, _)| Pos2::new(sx(a), sy(m))).collect();
         if screen.len() > 1 {
             if oc {
@@ -161,10 +149,9 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
         resp.on_hover_text_at_pointer(format!("{name} at α = {a}: {m:.2} ± {s:.2} ({n} trials)"));
     }
     ui.horizontal_wrapped(|ui| {
-        for (i, (name, _)) in prog.curves.iter().enumerate() {
-            let oc = prog.config.cases.get(i).is_some_and(|c| c.is_oc());
+        for ((name, _), &(c, oc)) in prog.curves.iter().zip(&styles) {
             let mark = if oc { "- -" } else { "—" };
-            ui.label(RichText::new(format!("{mark} {name}")).color(case_color(prog, i)));
+            ui.label(RichText::new(format!("{mark} {name}")).color(c));
         }
     });
 }
