@@ -460,6 +460,21 @@ pub fn train_stage1(
             "Result Fusion is not trained: train top, left and right, then calibrate-temperature".into(),
         ));
     }
+    if cfg.steps == 0 {
+        return Err(DetectError::BadParameter("steps must be at least 1".into()));
+    }
+    if !(cfg.lr.is_finite() && cfg.lr > 0.0 && cfg.lr < 1.0) {
+        return Err(DetectError::BadParameter(format!(
+            "the learning rate must be in (0, 1), got {}",
+            cfg.lr
+        )));
+    }
+    if !(cfg.weight_decay.is_finite() && cfg.weight_decay >= 0.0) {
+        return Err(DetectError::BadParameter(format!(
+            "the weight decay must be finite and >= 0, got {}",
+            cfg.weight_decay
+        )));
+    }
     let dataset = Dataset::open(&cfg.dataset)?;
     let (mut train, _) = split(&dataset);
     if cfg.max_samples > 0 {

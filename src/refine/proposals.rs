@@ -108,6 +108,11 @@ pub fn build(cfg: &DatabaseConfig, mut on_shard: impl FnMut(usize, usize)) -> Re
             "the database holds stage-1 proposals: give stage-1 cases".into(),
         ));
     }
+    if cfg.draws == 0 || cfg.cases.is_empty() {
+        return Err(RefineError::BadParameter(
+            "the database needs at least one draw and one case".into(),
+        ));
+    }
     if !(0.0..=1.0).contains(&cfg.zero_share) {
         return Err(RefineError::BadParameter(format!(
             "zero share {} is not in [0, 1]",
