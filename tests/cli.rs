@@ -1211,3 +1211,42 @@ fn absurd_datasets_fail_cleanly_or_work() {
     let out = ok_or_message(&["fuse", "--dataset", b, "--sample", &fine], false, "");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// The ablation's figures go to the manifest's `refiner_notrace` entry, not the shipped refiner's.
+#[test]
+fn table1_records_the_notrace_ablation_under_its_own_refiner() {
+    let s = Scratch::new("notrace-manifest");
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models");
+    for f in [
+        "manifest.json",
+        "input.safetensors",
+        "refiner-notrace.safetensors",
+    ] {
+        std::fs::copy(shipped.join(f), s.0.join(f)).expect("copy a shipped file");
+    }
+    let read = || -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(s.0.join("manifest.json")).expect("manifest")).expect("JSON")
+    };
+    let before = read();
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let out = mlod(&[
+        "table1",
+        "--dataset",
+        sample,
+        "--cases",
+        "mlod-i-notrace",
+        "--samples",
+        "3",
+        "--models",
+        s.0.to_str().expect("utf-8"),
+        "--update-manifest",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let after = read();
+    assert_eq!(
+        after["refiner"], before["refiner"],
+        "the shipped refiner's figures are untouched"
+    );
+    let ap = &after["refiner_notrace"]["test_ap"]["mlod-i-notrace/moderate_ap3d_0.7"];
+    assert!(ap.as_f64().is_some_and(|v| (0.0..=100.0).contains(&v)), "{ap}");
+}

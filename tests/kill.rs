@@ -277,14 +277,16 @@ fn a_killed_sweep_resumes_to_the_same_results_and_an_eval_out_is_old_or_new() {
     let total = run(&eval("2"));
     let new = std::fs::read(&out).expect("new report");
     assert!(old != new);
+    let mut killed = 0;
     for at in kill_points(total, 8, 59) {
         std::fs::write(&out, &old).expect("restore the old report");
         let mut cmd = Command::new(MLOD);
         cmd.args(eval("2"));
-        kill_after(cmd, at);
+        killed += usize::from(kill_after(cmd, at));
         let now = std::fs::read(&out).expect("a report");
         assert!(now == old || now == new, "eval --out left a torn report");
     }
+    assert!(killed > 0, "no eval was killed");
     let _ = std::fs::remove_dir_all(&d);
 }
 

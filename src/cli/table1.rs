@@ -200,7 +200,12 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
         let mut manifest = mlod::detect::Manifest::load(&models)?;
         for (case, figures) in &rows {
             if case.is_mlod() {
-                if let Some(entry) = manifest.refiner.as_mut() {
+                let entry = if case.refiner_sees_trace() {
+                    manifest.refiner.as_mut()
+                } else {
+                    manifest.refiner_notrace.as_mut()
+                };
+                if let Some(entry) = entry {
                     for (k, v) in figures {
                         match v {
                             Some(v) => entry.test_ap.insert(format!("{case}/{k}"), *v),
