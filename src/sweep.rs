@@ -120,6 +120,14 @@ pub fn spread_samples(all: &[String], n: Option<usize>) -> Vec<String> {
     }
 }
 
+/// The first element that an earlier one equals.
+fn first_repeat<T: PartialEq>(v: &[T]) -> Option<&T> {
+    v.iter()
+        .enumerate()
+        .find(|(i, x)| v.iter().take(*i).any(|y| y == *x))
+        .map(|(_, x)| x)
+}
+
 impl SweepConfig {
     /// Most perturbation trials a sweep may ask for (the paper runs 10).
     pub const MAX_TRIALS: usize = 10_000;
@@ -156,15 +164,11 @@ impl SweepConfig {
                 "the drop threshold must be a positive tr(Ξ) in m², got {d}"
             ));
         }
-        for (i, a) in self.alphas.iter().enumerate() {
-            if self.alphas.iter().take(i).any(|b| b == a) {
-                return bad(format!("α {a} is listed twice"));
-            }
+        if let Some(a) = first_repeat(&self.alphas) {
+            return bad(format!("α {a} is listed twice"));
         }
-        for (i, c) in self.cases.iter().enumerate() {
-            if self.cases.iter().take(i).any(|d| d == c) {
-                return bad(format!("case {c} is listed twice"));
-            }
+        if let Some(c) = first_repeat(&self.cases) {
+            return bad(format!("case {c} is listed twice"));
         }
         Ok(())
     }

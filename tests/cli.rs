@@ -998,6 +998,7 @@ fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
         sweep(sample, "input", "nan", "1", gif),
         sweep(sample, "input", "0.1", "0", gif),
         sweep(sample, "input,input", "0.1", "1", gif),
+        sweep(sample, "input", "0.1,0.1", "1", gif),
         vec!["eval", "--dataset", sample, "--case", "input", "--alpha", "1e9"],
         vec!["fuse", "--dataset", sample, "--alpha", "nan"],
         vec![

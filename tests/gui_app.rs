@@ -33,10 +33,22 @@ fn harness(session: Option<Session>) -> Harness<'static, MlodApp> {
 }
 
 fn harness_with(session: Option<Session>, models: Option<std::path::PathBuf>) -> Harness<'static, MlodApp> {
+    harness_and_render_state(session, models).0
+}
+
+/// [`harness_with`], and the wgpu render state the app was created with (for the viewport's
+/// GPU figures).
+fn harness_and_render_state(
+    session: Option<Session>,
+    models: Option<std::path::PathBuf>,
+) -> (Harness<'static, MlodApp>, egui_wgpu::RenderState) {
+    let render_state = std::sync::Arc::new(std::sync::Mutex::new(None));
+    let rs = render_state.clone();
     let mut h = Harness::builder()
         .with_size(egui::vec2(1280.0, 800.0))
         .wgpu()
         .build_eframe(move |cc| {
+            *rs.lock().unwrap() = cc.wgpu_render_state.clone();
             MlodApp::new(
                 cc,
                 AppOptions {
@@ -50,7 +62,8 @@ fn harness_with(session: Option<Session>, models: Option<std::path::PathBuf>) ->
             )
         });
     h.run_steps(3);
-    h
+    let rs = render_state.lock().unwrap().clone().expect("a wgpu render state");
+    (h, rs)
 }
 
 fn session_at(alpha: f64, mode: ColorMode) -> Session {
@@ -1476,29 +1489,9 @@ fn rss_kb() -> u64 {
 #[test]
 #[ignore = "soak: minutes; run with --ignored soak --nocapture"]
 fn soak_browse_1000_samples_and_10000_alpha_moves() {
-    let render_state = std::sync::Arc::new(std::sync::Mutex::new(None));
-    let rs = render_state.clone();
     let mut s = session_at(0.0, ColorMode::Trace);
     s.detection.case = Case::Input;
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1280.0, 800.0))
-        .wgpu()
-        .build_eframe(move |cc| {
-            *rs.lock().unwrap() = cc.wgpu_render_state.clone();
-            MlodApp::new(
-                cc,
-                AppOptions {
-                    dataset: default_dataset(),
-                    session: Some(s),
-                    synchronous: true,
-                    measure_frames: None,
-                    measure_run: false,
-                    models: None,
-                },
-            )
-        });
-    h.run_steps(3);
-    let rs = render_state.lock().unwrap().clone().expect("a wgpu render state");
+    let (mut h, rs) = harness_and_render_state(Some(s), None);
     let ds = Dataset::open(default_dataset()).unwrap();
     let tokens: Vec<String> = ds.sample_tokens().iter().map(|t| t.to_string()).collect();
     let (mut samples, mut moves, mut runs) = (0, 0, 0);

@@ -36,6 +36,11 @@ fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Duration {
     t.elapsed()
 }
 
+/// Owned arguments (the kill loop re-spawns the same command many times).
+fn strings(args: &[&str]) -> Vec<String> {
+    args.iter().map(|a| a.to_string()).collect()
+}
+
 /// Starts `cmd`, SIGKILLs it after `after` (if it is still running); true if it was killed.
 fn kill_after(mut cmd: Command, after: Duration) -> bool {
     let mut child = cmd
@@ -135,18 +140,18 @@ fn assert_prefix_of(got: &BTreeMap<PathBuf, Vec<u8>>, want: &BTreeMap<PathBuf, V
 fn a_killed_synth_leaves_only_complete_files_and_a_rerun_equals_an_uninterrupted_one() {
     let d = scratch("synth");
     let args = |out: &Path| {
-        let out = out.to_str().expect("utf-8").to_owned();
-        vec![
-            "synth".to_string(),
-            "--out".into(),
+        let out = out.to_str().expect("utf-8");
+        strings(&[
+            "synth",
+            "--out",
             out,
-            "--scenes".into(),
-            "1".into(),
-            "--samples-per-scene".into(),
-            "6".into(),
-            "--seed".into(),
-            "5".into(),
-        ]
+            "--scenes",
+            "1",
+            "--samples-per-scene",
+            "6",
+            "--seed",
+            "5",
+        ])
     };
     let a = d.join("a");
     let total = run(&args(&a));
@@ -179,7 +184,7 @@ fn a_killed_training_resumes_bit_identical() {
         "4",
     ]);
     let args = |out: &Path, resume: bool| {
-        let mut v: Vec<String> = [
+        let mut v = strings(&[
             "train",
             "stage1",
             "--case",
@@ -194,9 +199,7 @@ fn a_killed_training_resumes_bit_identical() {
             "2",
             "--checkpoint-every",
             "1",
-        ]
-        .map(String::from)
-        .to_vec();
+        ]);
         if resume {
             v.push("--resume".into());
         }
@@ -227,21 +230,21 @@ fn a_killed_sweep_resumes_to_the_same_results_and_an_eval_out_is_old_or_new() {
     let d = scratch("sweep");
     let sample = root().join("sample_data");
     let args = |out: &Path| {
-        vec![
-            "sweep".to_string(),
-            "--dataset".into(),
-            sample.to_str().expect("utf-8").into(),
-            "--cases".into(),
-            "top,input".into(),
-            "--alphas".into(),
-            "0,0.1".into(),
-            "--samples".into(),
-            "2".into(),
-            "--trials".into(),
-            "2".into(),
-            "--out".into(),
-            out.to_str().expect("utf-8").into(),
-        ]
+        strings(&[
+            "sweep",
+            "--dataset",
+            sample.to_str().expect("utf-8"),
+            "--cases",
+            "top,input",
+            "--alphas",
+            "0,0.1",
+            "--samples",
+            "2",
+            "--trials",
+            "2",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ])
     };
     let a = d.join("a");
     let total = run(&args(&a));
@@ -260,17 +263,17 @@ fn a_killed_sweep_resumes_to_the_same_results_and_an_eval_out_is_old_or_new() {
     // the complete new one.
     let out = d.join("report.json");
     let eval = |limit: &str| {
-        vec![
-            "eval".to_string(),
-            "--dataset".into(),
-            sample.to_str().expect("utf-8").into(),
-            "--case".into(),
-            "top".into(),
-            "--samples".into(),
-            limit.into(),
-            "--out".into(),
-            out.to_str().expect("utf-8").into(),
-        ]
+        strings(&[
+            "eval",
+            "--dataset",
+            sample.to_str().expect("utf-8"),
+            "--case",
+            "top",
+            "--samples",
+            limit,
+            "--out",
+            out.to_str().expect("utf-8"),
+        ])
     };
     run(&eval("1"));
     let old = std::fs::read(&out).expect("old report");

@@ -608,8 +608,8 @@ impl SceneRenderer {
     }
 
     /// Uploads what changed, (re)creates the target, and records the view's render pass.
-    /// Scenes and render targets held, and the bytes of their GPU buffers and textures' colour
-    /// attachments (what a soak watches for growth).
+    /// Scenes and render targets held, and the bytes of the scenes' GPU buffers (what a soak
+    /// watches for growth).
     pub(crate) fn usage(&self) -> GpuUsage {
         let bytes = |b: &GrowBuffer| b.buffer.as_ref().map_or(0, |b| b.size());
         GpuUsage {
