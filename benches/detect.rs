@@ -7,11 +7,11 @@
 //! else seeded random weights (same cost, but random weights give few boxes, so decoding/NMS is
 //! cheaper than with trained ones).
 use criterion::{criterion_group, criterion_main, Criterion};
+use mlod::dataset::Dataset;
 use mlod::detect::model::load_detector;
 use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, Detector, ModelConfig, ResultFusion, Stage1Model};
-use mlod::lyft::Dataset;
 use mlod::pipeline::{fuse, FuseParams};
 use std::hint::black_box;
 

@@ -50,7 +50,7 @@ fn bench(c: &mut Criterion) {
     });
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let ds = mlod::lyft::Dataset::open(root.join("sample_data")).expect("sample_data");
+    let ds = mlod::dataset::Dataset::open(root.join("sample_data")).expect("sample_data");
     let opts = EvalOptions::default();
     let tokens = eval::sample_tokens(&ds, &opts);
     let known: HashSet<&str> = tokens.iter().map(String::as_str).collect();

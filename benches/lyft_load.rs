@@ -7,12 +7,12 @@ use std::hint::black_box;
 use std::path::{Path, PathBuf};
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use mlod::geometry::rpy_to_matrix;
-use mlod::lyft::tables::{
+use mlod::dataset::tables::{
     Attribute, CalibratedSensor, Category, EgoPose, Instance, Log, Map, Sample, SampleAnnotation, SampleData,
     Scene, Sensor, Visibility,
 };
-use mlod::lyft::{write_bin, Dataset, PointCloud, Table, Tables};
+use mlod::dataset::{write_bin, Dataset, PointCloud, Table, Tables};
+use mlod::geometry::rpy_to_matrix;
 use nalgebra::UnitQuaternion;
 
 const CHANNELS: [(&str, [f64; 3], [f64; 3], usize); 3] = [

@@ -4,8 +4,8 @@
 //! and normals included (`calib`). Target (OC issue): ≤ 50 ms on 2 cores.
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::color::{colorize, histogram, ColorParams};
+use mlod::dataset::{Frame, LidarChannel, LidarScan, PointCloud};
 use mlod::geometry::{pose_from_rt, rpy_to_matrix, Pose};
-use mlod::lyft::{Frame, LidarChannel, LidarScan, PointCloud};
 use mlod::pipeline::{fuse, FuseParams};
 use mlod::uncertainty::Perturbation;
 use nalgebra::Vector3;
@@ -84,7 +84,7 @@ fn bench(c: &mut Criterion) {
 
 fn bench_icp(c: &mut Criterion) {
     use mlod::calib::{align, voxel_downsample, IcpConfig, Target};
-    let ds = mlod::lyft::Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+    let ds = mlod::dataset::Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
     let frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
     let params = FuseParams {
         perturbation: Perturbation::new(0.1, 0).unwrap(),

@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::OnceLock;
 
+use mlod::dataset::{parse_bin, Dataset, LoadOptions, POINT_BYTES};
 use mlod::detect::{Case, Manifest, Stage1Model};
-use mlod::lyft::{parse_bin, Dataset, LoadOptions, POINT_BYTES};
 use mlod::refine::{Decoding, Refiner};
 
 /// A folder of its own under the temp dir (tmpfs where there is one), removed on drop.
@@ -94,13 +94,13 @@ fn tiny_bin() -> Vec<u8> {
 /// LiDAR file must resolve inside the root), given tiny `.bin` files, loaded and fused.
 pub fn lyft_tables(data: &[u8]) {
     let s = Scratch::new("lyft");
-    let names = mlod::lyft::tables::TABLE_NAMES;
+    let names = mlod::dataset::tables::TABLE_NAMES;
     for (name, part) in names.iter().zip(parts(data, names.len())) {
         s.write(&format!("v1.01-train/{name}.json"), part);
     }
     let Ok(ds) = Dataset::open(s.path()) else { return };
     let _ = ds.samples();
-    let _ = mlod::lyft::train_validation_split(&ds);
+    let _ = mlod::dataset::train_validation_split(&ds);
     let root = std::fs::canonicalize(s.path()).expect("scratch root");
     for token in ds.sample_tokens().into_iter().take(4) {
         let _ = ds.lidar_channels(token);
@@ -253,8 +253,8 @@ fn sample_dataset() -> &'static Dataset {
     DS.get_or_init(|| Dataset::open(repo_file("sample_data")).expect("sample_data opens"))
 }
 
-fn sample_frame() -> &'static mlod::lyft::Frame {
-    static F: OnceLock<mlod::lyft::Frame> = OnceLock::new();
+fn sample_frame() -> &'static mlod::dataset::Frame {
+    static F: OnceLock<mlod::dataset::Frame> = OnceLock::new();
     F.get_or_init(|| {
         let ds = sample_dataset();
         let t = ds.first_sample_token().expect("a sample").to_owned();

@@ -33,8 +33,8 @@ use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
 
+use crate::dataset::LidarChannel;
 use crate::io::{write_atomic, IoError};
-use crate::lyft::LidarChannel;
 use crate::pipeline::{FuseParams, FusedCloud};
 
 mod read;

@@ -14,10 +14,10 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::dataset::Dataset;
 use crate::detect::{Case, DetectError, Detection, Detector};
 use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::IouKind;
-use crate::lyft::Dataset;
 use crate::pipeline::FuseParams;
 
 /// What a failure scan runs.
@@ -145,7 +145,7 @@ fn scan_sample(
 ) -> Result<SampleFailures, DetectError> {
     let frame = dataset.frame(token)?;
     let categories = detector.categories();
-    let gt_boxes: Vec<&crate::lyft::GtBox> = frame
+    let gt_boxes: Vec<&crate::dataset::GtBox> = frame
         .boxes
         .iter()
         .filter(|b| categories.contains(&b.category))

@@ -11,9 +11,9 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::dataset::LidarChannel;
 use crate::eval::BoxError;
 use crate::geometry::{iou_3d, Box3d, Detection};
-use crate::lyft::LidarChannel;
 use crate::pipeline::FusedCloud;
 use crate::refine::Refined;
 use crate::uncertainty::UNCERTAIN_TRACE;

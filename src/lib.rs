@@ -2,7 +2,7 @@
 //! extrinsic perturbation (Jiao, Yun, Tai, Liu: "MLOD: Awareness of Extrinsic Perturbation in
 //! Multi-LiDAR 3D Object Detection for Autonomous Driving").
 //!
-//! Dependencies point one way: `gui` → `pipeline` → {`uncertainty`, …} → {`lyft`, `geometry`}.
+//! Dependencies point one way: `gui` → `pipeline` → {`uncertainty`, …} → {`dataset`, `geometry`}.
 //! Nothing outside `gui` depends on egui, eframe or wgpu.
 //!
 //! No panic on data: the library denies `unwrap`, `expect` and `panic!` outside tests; each site
@@ -15,6 +15,7 @@
 
 pub mod calib;
 pub mod color;
+pub mod dataset;
 pub mod detect;
 pub mod eval;
 pub mod export;
@@ -22,7 +23,6 @@ pub mod failures;
 pub mod geometry;
 pub mod inspect;
 pub mod io;
-pub mod lyft;
 pub mod pipeline;
 pub mod plot;
 pub mod refine;

@@ -18,8 +18,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{self, CalibError, Calibration, IcpConfig, LidarCalibration, OcPrior};
+use crate::dataset::{Frame, LidarChannel, LidarScan};
 use crate::geometry::Pose;
-use crate::lyft::{Frame, LidarChannel, LidarScan};
 use crate::uncertainty::propagate::{covariance_cloud, PARALLEL_THRESHOLD};
 use crate::uncertainty::{ExtrinsicNoise, Linearization, Perturbation, Prior, TraceKernel, UncertaintyError};
 
@@ -467,8 +467,8 @@ pub fn box_stats(cloud: &FusedCloud, b: &crate::geometry::Box3d) -> BoxStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dataset::{LidarScan, PointCloud};
     use crate::geometry::{pose_from_rt, rpy_to_matrix};
-    use crate::lyft::{LidarScan, PointCloud};
     use crate::uncertainty::Perturbation;
     use nalgebra::Vector3;
 

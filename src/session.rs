@@ -12,9 +12,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::{Calibration, OcPrior};
 use crate::color::ColorParams;
+use crate::dataset::LidarChannel;
 use crate::detect::Case;
 use crate::io::{write_atomic, IoError};
-use crate::lyft::LidarChannel;
 use crate::pipeline::FuseParams;
 use crate::uncertainty::ExtrinsicNoise;
 

@@ -23,11 +23,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{IcpConfig, OcPrior};
+use crate::dataset::Dataset;
 use crate::detect::model::{load_detector_with, Voting};
 use crate::detect::{Case, DetectError, Detection, Detector};
 use crate::eval::{evaluate_detections, EvalOptions};
 use crate::io::write_atomic;
-use crate::lyft::Dataset;
 use crate::pipeline::{calibrate, fuse, FuseParams};
 use crate::refine::Refiner;
 use crate::uncertainty::Perturbation;

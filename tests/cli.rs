@@ -1067,7 +1067,7 @@ impl Drop for Scratch {
 /// sample_data's tables as JSON values, by table name.
 fn sample_tables() -> std::collections::BTreeMap<String, serde_json::Value> {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data/v1.01-train");
-    mlod::lyft::tables::TABLE_NAMES
+    mlod::dataset::tables::TABLE_NAMES
         .iter()
         .map(|t| {
             let bytes = std::fs::read(dir.join(format!("{t}.json"))).expect("table");

@@ -2,10 +2,10 @@
 //! seeded random weights and on the shipped weights, for single-branch and Feature Fusion models,
 //! with and without absent LiDARs; and its result does not depend on the number of threads.
 
+use mlod::dataset::Dataset;
 use mlod::detect::infer::RawHeads;
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, ModelConfig, Stage1Model};
-use mlod::lyft::Dataset;
 use mlod::pipeline::{fuse, FuseParams, FusedCloud};
 
 fn cloud() -> FusedCloud {

@@ -5,10 +5,10 @@
 
 use std::path::Path;
 
+use mlod::dataset::Dataset;
 use mlod::detect::model::load_detector;
 use mlod::detect::weights::{default_models_dir, Manifest};
 use mlod::detect::Case;
-use mlod::lyft::Dataset;
 use mlod::pipeline::FuseParams;
 
 /// `json` equals the committed fixture at `path` byte for byte (with `bless`: written there first).

@@ -8,8 +8,8 @@
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+use mlod::dataset::Dataset;
 use mlod::eval::{self, EvalOptions, Fix, GtOutcome, MatchRule, PredOutcome};
-use mlod::lyft::Dataset;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf()

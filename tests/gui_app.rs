@@ -12,6 +12,7 @@ use egui::accesskit::Role;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use mlod::color::ColorMode;
+use mlod::dataset::Dataset;
 use mlod::detect::model::Voting;
 use mlod::detect::{Case, Detection, Manifest};
 use mlod::eval::{evaluate_detections, EvalOptions, GtOutcome, MatchRule, PredOutcome};
@@ -21,7 +22,6 @@ use mlod::gui::{
     default_dataset, AppOptions, MlodApp, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR,
     REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR,
 };
-use mlod::lyft::Dataset;
 use mlod::refine::load_mlod;
 use mlod::refine::proposals::DatabaseConfig;
 use mlod::refine::train::{train_refiner, RefineTrainConfig};

@@ -7,15 +7,15 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use mlod::geometry::{quat_from_wxyz, rpy_to_matrix, yaw_of};
-use mlod::lyft::tables::{
+use mlod::dataset::tables::{
     Attribute, CalibratedSensor, Category, EgoPose, Instance, Log, Map, Sample, SampleAnnotation, SampleData,
     Scene, Sensor, Visibility,
 };
-use mlod::lyft::{
-    inspect, list, pyquaternion_yaw, read_bin, write_bin, Dataset, LidarChannel, LoadOptions, LyftError,
+use mlod::dataset::{
+    inspect, list, pyquaternion_yaw, read_bin, write_bin, Dataset, DatasetError, LidarChannel, LoadOptions,
     PointCloud, Table, Tables,
 };
+use mlod::geometry::{quat_from_wxyz, rpy_to_matrix, yaw_of};
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 
 const REAL_SAMPLE: &str = "199e3146d98e6a2047bafbc222b92f5b67c4640a69b0d1d35b710242de816679";
@@ -284,7 +284,7 @@ fn real_sample_reports_its_missing_bin_files() {
     let ds = Dataset::open(real_root()).unwrap();
     let err = ds.frame(REAL_SAMPLE).unwrap_err();
     let msg = err.to_string();
-    assert!(matches!(err, LyftError::MissingPointCloud { .. }), "{msg}");
+    assert!(matches!(err, DatasetError::MissingPointCloud { .. }), "{msg}");
     assert!(
         msg.contains("lidar/host-a101_lidar1_1240710385903083166.bin"),
         "{msg}"
@@ -438,7 +438,7 @@ fn missing_or_corrupt_tables_are_named() {
             }
         }
         let err = Dataset::open(tmp.path()).unwrap_err();
-        assert!(matches!(err, LyftError::MissingTable { .. }), "{err}");
+        assert!(matches!(err, DatasetError::MissingTable { .. }), "{err}");
         assert!(err.to_string().contains(&format!("{victim}.json")), "{err}");
 
         // Corrupt instead of missing: the message has the file, line and column.
@@ -449,7 +449,7 @@ fn missing_or_corrupt_tables_are_named() {
         .unwrap();
         let err = Dataset::open(tmp.path()).unwrap_err();
         let msg = err.to_string();
-        assert!(matches!(err, LyftError::Json { line: 2, .. }), "{msg}");
+        assert!(matches!(err, DatasetError::Json { line: 2, .. }), "{msg}");
         assert!(msg.contains(&format!("{victim}.json:2:")), "{msg}");
 
         // A row without a required field is named too.
@@ -466,7 +466,7 @@ fn missing_or_corrupt_tables_are_named() {
 fn open_errors_name_the_folder() {
     let tmp = TempDir::new("empty");
     let err = Dataset::open(tmp.path()).unwrap_err();
-    assert!(matches!(err, LyftError::VersionFolderNotFound { .. }), "{err}");
+    assert!(matches!(err, DatasetError::VersionFolderNotFound { .. }), "{err}");
     let err = Dataset::open(tmp.path().join("nope")).unwrap_err();
     assert!(err.to_string().contains("nope"), "{err}");
     // Two version folders: ambiguous.
@@ -788,7 +788,7 @@ fn synthetic_three_lidar_frame_loads_points_and_consistent_extrinsics() {
     // A global point seen by each LiDAR maps to the same base-frame point through T^b_{l_i}.
     let pg = Point3::new(120.0, 190.0, -17.0);
     let to_sensor =
-        |l: &mlod::lyft::LidarInfo| (l.ego_to_global * l.sensor_to_ego).inverse_transform_point(&pg);
+        |l: &mlod::dataset::LidarInfo| (l.ego_to_global * l.sensor_to_ego).inverse_transform_point(&pg);
     let p_base = to_sensor(&f.primary.info);
     for l in f.lidars() {
         let p = l.info.extrinsic.transform_point(&to_sensor(&l.info));
@@ -890,10 +890,10 @@ fn single_lidar_sample_and_missing_lidar_top() {
     assert_eq!(r.lidars.len(), 1);
 
     let err = ds.frame("no-top").unwrap_err();
-    assert!(matches!(err, LyftError::NoLidarTop { .. }), "{err}");
+    assert!(matches!(err, DatasetError::NoLidarTop { .. }), "{err}");
     assert!(err.to_string().contains("no-top") && err.to_string().contains("LIDAR_TOP"));
     let err = ds.frame("nope").unwrap_err();
-    assert!(matches!(err, LyftError::UnknownSample { .. }), "{err}");
+    assert!(matches!(err, DatasetError::UnknownSample { .. }), "{err}");
 
     let l = list(&ds);
     assert_eq!(l[0].lidar_channels, ["LIDAR_TOP"]);
@@ -951,7 +951,7 @@ fn truncated_bin_is_an_error_and_lenient_trims() {
     let err = ds.frame("s").unwrap_err();
     let msg = err.to_string();
     assert!(
-        matches!(err, LyftError::TruncatedPointCloud { size: 83, .. }),
+        matches!(err, DatasetError::TruncatedPointCloud { size: 83, .. }),
         "{msg}"
     );
     assert!(
@@ -1016,7 +1016,7 @@ fn path_traversal_is_rejected_and_other_samples_still_load() {
     ] {
         let err = ds.frame(token).unwrap_err();
         let msg = err.to_string();
-        assert!(matches!(err, LyftError::UnsafePath { .. }), "{msg}");
+        assert!(matches!(err, DatasetError::UnsafePath { .. }), "{msg}");
         assert!(
             msg.contains(&format!("sd-{token}-LIDAR_TOP")) && msg.contains(filename),
             "{msg}"
@@ -1034,7 +1034,7 @@ fn missing_bin_names_file_and_token_and_other_samples_load() {
     let ds = Dataset::open(&root).unwrap();
     let err = ds.frame("gone").unwrap_err();
     let msg = err.to_string();
-    assert!(matches!(err, LyftError::MissingPointCloud { .. }), "{msg}");
+    assert!(matches!(err, DatasetError::MissingPointCloud { .. }), "{msg}");
     assert!(
         msg.contains("lidar/gone_LIDAR_FRONT_RIGHT.bin") && msg.contains("sd-gone-LIDAR_FRONT_RIGHT"),
         "{msg}"

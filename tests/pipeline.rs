@@ -1,7 +1,7 @@
 //! Frame + perturbation -> fused cloud with tr(Ξ): the path the GUI and CLI share.
 
+use mlod::dataset::{Frame, LidarChannel, LidarScan, PointCloud};
 use mlod::geometry::{pose_from_rt, rpy_to_matrix};
-use mlod::lyft::{Frame, LidarChannel, LidarScan, PointCloud};
 use mlod::pipeline::{fuse, FuseParams};
 use mlod::uncertainty::propagate::trace;
 use mlod::uncertainty::{ExtrinsicNoise, Perturbation, Prior};

@@ -6,8 +6,8 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use mlod::dataset::{Dataset, LidarChannel};
 use mlod::geometry::Pose;
-use mlod::lyft::{Dataset, LidarChannel};
 use mlod::synth::{
     generate, pandar40_elevations_deg, scan_sample, Hit, SampleScan, SynthConfig, SynthSummary, Town,
     LYFT_MOUNTS,

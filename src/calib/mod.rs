@@ -25,8 +25,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::LidarChannel;
 use crate::geometry::{log, Pose};
-use crate::lyft::LidarChannel;
 
 pub use icp::{align, voxel_downsample, IcpOutcome, Target};
 

@@ -48,7 +48,7 @@ pub fn parse_alpha(s: &str) -> Result<f64, String> {
 }
 
 /// The sample asked for, or the dataset's first sample in scene order.
-pub fn sample_token(dataset: &mlod::lyft::Dataset, sample: Option<&str>) -> Result<String> {
+pub fn sample_token(dataset: &mlod::dataset::Dataset, sample: Option<&str>) -> Result<String> {
     match sample {
         Some(t) => Ok(t.to_string()),
         None => Ok(dataset

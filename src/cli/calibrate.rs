@@ -11,8 +11,8 @@ use nalgebra::{Matrix6, Vector6};
 use serde::Serialize;
 
 use mlod::calib::{IcpConfig, LidarCalibration, OcPrior, PoseError};
+use mlod::dataset::{Dataset, Frame};
 use mlod::geometry::log;
-use mlod::lyft::{Dataset, Frame};
 use mlod::pipeline::{calibrate, FuseParams};
 use mlod::uncertainty::Perturbation;
 
@@ -139,7 +139,7 @@ fn mahalanobis2(l: &LidarCalibration, truth: &mlod::geometry::Pose) -> f64 {
 
 fn tokens(dataset: &Dataset, args: &CalibrateArgs) -> Result<Vec<String>> {
     let all: Vec<String> = if args.validation {
-        mlod::lyft::train_validation_split(dataset).1
+        mlod::dataset::train_validation_split(dataset).1
     } else {
         dataset.sample_tokens().into_iter().map(String::from).collect()
     };

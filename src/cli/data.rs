@@ -83,9 +83,9 @@ pub fn synth(args: SynthArgs) -> Result<()> {
 }
 
 pub fn inspect(args: InspectArgs) -> Result<()> {
-    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
     if args.list {
-        let samples = mlod::lyft::list(&dataset);
+        let samples = mlod::dataset::list(&dataset);
         if args.json {
             println!("{}", serde_json::to_string_pretty(&samples)?);
         } else {
@@ -101,10 +101,10 @@ pub fn inspect(args: InspectArgs) -> Result<()> {
         }
         return Ok(());
     }
-    let opts = mlod::lyft::LoadOptions {
+    let opts = mlod::dataset::LoadOptions {
         lenient: args.lenient,
     };
-    let report = mlod::lyft::inspect_with(&dataset, args.sample.as_deref(), opts)?;
+    let report = mlod::dataset::inspect_with(&dataset, args.sample.as_deref(), opts)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

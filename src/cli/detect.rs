@@ -94,7 +94,7 @@ pub enum DetectFormat {
 }
 
 pub fn detect(a: DetectArgs) -> Result<()> {
-    let dataset = mlod::lyft::Dataset::open(&a.dataset)?;
+    let dataset = mlod::dataset::Dataset::open(&a.dataset)?;
     let token = sample_token(&dataset, a.sample.as_deref())?;
     let frame = dataset.frame(&token)?;
     let params = a.run.fuse_params()?;

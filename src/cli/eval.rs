@@ -62,7 +62,7 @@ pub struct EvalArgs {
 /// The samples `opts` evaluates; an error naming the dataset when it asks for the validation
 /// scenes and there are none.
 pub fn evaluated_tokens(
-    dataset: &mlod::lyft::Dataset,
+    dataset: &mlod::dataset::Dataset,
     path: &std::path::Path,
     opts: &mlod::eval::EvalOptions,
 ) -> Result<Vec<String>> {
@@ -78,7 +78,7 @@ pub fn evaluated_tokens(
 
 /// Runs a shipped detector over `tokens` (samples in parallel): its detections per sample.
 pub fn detect_case(
-    dataset: &mlod::lyft::Dataset,
+    dataset: &mlod::dataset::Dataset,
     tokens: &[String],
     run: &DetectorRun,
     case: mlod::detect::Case,
@@ -104,7 +104,7 @@ pub fn detect_case(
 
 /// Runs a shipped detector over `tokens` and evaluates it.
 pub fn run_case(
-    dataset: &mlod::lyft::Dataset,
+    dataset: &mlod::dataset::Dataset,
     tokens: &[String],
     run: &DetectorRun,
     case: mlod::detect::Case,
@@ -120,7 +120,7 @@ pub fn eval_cmd(args: EvalArgs) -> Result<()> {
     if args.match_range.is_nan() || args.match_range <= 0.0 {
         bail!("--match-range must be positive, got {}", args.match_range);
     }
-    let dataset = mlod::lyft::Dataset::open(&args.dataset)?;
+    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
     let mut opts = EvalOptions {
         samples: args.samples,
         validation_only: args.validation,
@@ -284,7 +284,7 @@ pub fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()
 /// per trial, its mean and (sample) standard deviation.
 fn trials(
     args: &EvalArgs,
-    dataset: &mlod::lyft::Dataset,
+    dataset: &mlod::dataset::Dataset,
     tokens: &[String],
     case: mlod::detect::Case,
     opts: &mlod::eval::EvalOptions,

@@ -8,9 +8,9 @@ use anyhow::{bail, Context, Result};
 
 use super::args::parse_unit;
 use super::detect::DetectorRun;
+use mlod::dataset::Dataset;
 use mlod::detect::Case;
 use mlod::failures::{scan, ScanConfig};
-use mlod::lyft::Dataset;
 
 #[derive(clap::Args)]
 pub struct FailuresArgs {

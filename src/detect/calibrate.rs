@@ -8,8 +8,8 @@ use std::path::Path;
 use super::model::Stage1Model;
 use super::weights::Manifest;
 use super::{Case, DetectError};
+use crate::dataset::{train_validation_split as split, Dataset};
 use crate::geometry::{iou_3d, Box3d};
-use crate::lyft::{train_validation_split as split, Dataset};
 use crate::pipeline::{fuse, FuseParams};
 
 /// Fits the temperature T of sigmoid(logit / T) minimising the NLL of TP (1) / FP (0) labels, by

@@ -2,7 +2,7 @@
 //! the points whose tr(Ξ) is above a threshold and run Input Fusion on the rest. Its sensitivity
 //! to the threshold is what the paper argues against (`docs/robustness.md`).
 
-use crate::lyft::Frame;
+use crate::dataset::Frame;
 use crate::pipeline::{FusedCloud, FusedLidar};
 
 use super::{Case, DetectError, Detection, Detector};
@@ -72,7 +72,7 @@ impl Detector for DropDetector {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lyft::LidarChannel;
+    use crate::dataset::LidarChannel;
 
     #[test]
     fn drops_exactly_the_uncertain_points_and_keeps_ranges() {

@@ -20,8 +20,8 @@ use rayon::prelude::*;
 
 use super::anchors::{box3d_of, raw_box, RawBox};
 use super::{Case, DetectError};
+use crate::dataset::{Dataset, Frame, LidarChannel};
 use crate::geometry::iou::Footprint;
-use crate::lyft::{Dataset, Frame, LidarChannel};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
 /// One object of the database: its box and its points per LiDAR (in [`LidarChannel::ALL`] order),

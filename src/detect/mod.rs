@@ -37,7 +37,7 @@ pub mod weights;
 
 use serde::{Deserialize, Serialize};
 
-use crate::lyft::{Frame, LidarChannel};
+use crate::dataset::{Frame, LidarChannel};
 use crate::pipeline::{FuseParams, FusedCloud};
 
 /// A detector's output: a base-frame box, its confidence in [0, 1] (calibrated by temperature
@@ -325,7 +325,7 @@ pub enum DetectError {
     #[error(transparent)]
     Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
-    Lyft(#[from] crate::lyft::LyftError),
+    Lyft(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
 }

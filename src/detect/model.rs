@@ -25,8 +25,8 @@ use super::net::{HeadOutput, Stage1Net};
 use super::voxel::{voxelize, Bev, PointsRef};
 use super::weights::{encode_safetensors, read_weights, Manifest};
 use super::{Case, DetectError, Detection, Detector};
+use crate::dataset::{Frame, LidarChannel};
 use crate::geometry::{nms, vote, Box3d, IouKind};
-use crate::lyft::{Frame, LidarChannel};
 use crate::pipeline::FusedCloud;
 
 /// The points each branch of a case sees, as slices of the fused cloud (`None`: LiDAR absent).
@@ -509,7 +509,7 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lyft::Dataset;
+    use crate::dataset::Dataset;
     use crate::pipeline::{fuse, FuseParams};
 
     fn sample_frame() -> Frame {

@@ -3,7 +3,7 @@
 //! extrinsics. The wrapped detector is unchanged: the same weights see a better-aligned cloud.
 
 use crate::calib::{IcpConfig, OcPrior};
-use crate::lyft::Frame;
+use crate::dataset::Frame;
 use crate::pipeline::{calibrate, fuse, FuseParams, FusedCloud};
 
 use super::{Case, DetectError, Detection, Detector};

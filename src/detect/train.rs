@@ -42,8 +42,8 @@ use super::voxel::{voxelize, Bev, PointsRef};
 pub use super::warm_start::warm_start;
 use super::weights::{file_name_of, folder_of, read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
 use super::{Case, DetectError};
-pub use crate::lyft::train_validation_split as split;
-use crate::lyft::{Dataset, Frame};
+pub use crate::dataset::train_validation_split as split;
+use crate::dataset::{Dataset, Frame};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
 /// The §V-A-5 augmentation of one sample.

@@ -68,8 +68,8 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
+    use crate::dataset::Dataset;
     use crate::detect::{Case, ModelConfig};
-    use crate::lyft::Dataset;
     use crate::pipeline::{fuse, FuseParams};
 
     #[test]

@@ -24,8 +24,8 @@ use super::kitti::{kitti_ap, KittiConfig, KittiReport, SampleBoxes};
 use super::localization::{self, with_truth, BoxError, Fix, LocalizationSummary};
 use super::lyft::{lyft_map, thresholds, Footprints, LyftBox, LyftMap};
 use super::matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
+use crate::dataset::{Dataset, DatasetError};
 use crate::geometry::{Box3d, Detection, Pose};
-use crate::lyft::{Dataset, LyftError};
 
 /// Errors of reading predictions and evaluating them.
 #[derive(Debug, Error)]
@@ -44,7 +44,7 @@ pub enum EvalError {
     )]
     NoSamples { dataset: PathBuf },
     #[error(transparent)]
-    Lyft(#[from] LyftError),
+    Lyft(#[from] DatasetError),
 }
 
 /// A rejected prediction: its position in the input list and why.
@@ -320,7 +320,7 @@ struct SampleTruth {
     lyft: Vec<LyftBox>,
 }
 
-fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, LyftError> {
+fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
     let info = dataset.frame_info(token)?;
     let base_to_global = info.primary.ego_to_global * info.primary.sensor_to_ego;
     let category: HashMap<&str, &str> = info
@@ -365,7 +365,7 @@ fn evaluated_tokens(dataset: &Dataset, opts: &EvalOptions) -> Vec<String> {
     let mut all: Vec<String> = if let Some(only) = &opts.only {
         only.clone()
     } else if opts.validation_only {
-        crate::lyft::train_validation_split(dataset).1
+        crate::dataset::train_validation_split(dataset).1
     } else {
         dataset.sample_tokens().iter().map(|s| (*s).to_owned()).collect()
     };

@@ -9,9 +9,9 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 
 use crate::calib::{Calibration, IcpConfig, OcPrior};
+use crate::dataset::{Dataset, Frame, SampleSummary};
 use crate::detect::model::{load_detector, Voting};
 use crate::detect::{Case, Detection, Detector};
-use crate::lyft::{Dataset, Frame, SampleSummary};
 use crate::pipeline::FuseParams;
 use crate::refine::{load_mlod, Mlod, Refined};
 

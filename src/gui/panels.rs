@@ -20,7 +20,7 @@ pub use sweep::sweep_window;
 use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
 use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
 use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
-use crate::lyft::LidarChannel;
+use crate::dataset::LidarChannel;
 use crate::session::Session;
 use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
 

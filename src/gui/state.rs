@@ -12,11 +12,11 @@ use eframe::egui;
 use egui::{Color32, RichText};
 
 use super::viewport::{Camera, Projection, View};
+use crate::dataset::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::detect::{Case, Detection};
 use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::{iou_3d, IouKind};
 use crate::inspect::{PointsInside, PredictionDetails};
-use crate::lyft::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::pipeline::FusedCloud;
 use crate::refine::Refined;
 use crate::session::{BoxLayer, CameraPose, DetectionSettings, FailureScope};

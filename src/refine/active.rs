@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use super::model::Mlod;
 use super::RefineError;
-use crate::lyft::Dataset;
+use crate::dataset::Dataset;
 use crate::pipeline::FuseParams;
 use crate::uncertainty::UNCERTAIN_TRACE;
 

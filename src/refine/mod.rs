@@ -50,7 +50,7 @@ pub enum RefineError {
     #[error(transparent)]
     Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
-    Lyft(#[from] crate::lyft::LyftError),
+    Lyft(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
 }

@@ -25,11 +25,11 @@ use super::infer::{FastRefiner, RefinerRun};
 use super::net::{proposal_features, RefinerConfig, PROPOSAL_FEATURES};
 use super::points::{gather, sample, CloudIndex};
 use super::RefineError;
+use crate::dataset::Frame;
 use crate::detect::model::{load_detector_with, Voting};
 use crate::detect::weights::{read_weights, Manifest, RefineTuning};
 use crate::detect::{Case, DetectError, Detection, Detector};
 use crate::geometry::{nms, Box3d, IouKind};
-use crate::lyft::Frame;
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
 /// The file name of the shipped refiner in a models folder.

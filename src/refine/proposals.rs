@@ -17,10 +17,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::RefineError;
+use crate::dataset::{train_validation_split, Dataset};
 use crate::detect::model::{load_detector_with, Voting};
 use crate::detect::{Case, Detection};
 use crate::geometry::Box3d;
-use crate::lyft::{train_validation_split, Dataset};
 use crate::pipeline::FuseParams;
 use crate::uncertainty::Perturbation;
 

@@ -35,13 +35,13 @@ use super::net::{proposal_features, RefinerConfig, RefinerNet, PROPOSAL_FEATURES
 use super::points::{push_row, sample, CloudIndex, ProposalPoints};
 use super::proposals::{load, ProposalEntry};
 use super::RefineError;
+use crate::dataset::Dataset;
 use crate::detect::checkpoint::{loss_rows_before, restore_varmap, varmap_tensors, write_loss_csv};
 use crate::detect::optim::AdamW;
 use crate::detect::weights::{
     encode_safetensors, file_name_of, folder_of, read_weights, sha256_hex, Manifest, ModelEntry,
 };
 use crate::geometry::{iou_3d, Box3d};
-use crate::lyft::Dataset;
 use crate::pipeline::{fuse, FusedCloud};
 
 /// Training settings.

@@ -13,7 +13,7 @@
 //! - [`raycast`]: 3 × 40 × 1800 rays per key frame against the ground and a 2D grid of
 //!   primitives, nearest hit wins, with range noise, intensity, drop-outs — in parallel with
 //!   rayon and byte-identical for a seed (per-ray randomness is a hash, not a shared generator);
-//! - [`writer`]: [`generate`] writes the dataset (tables through [`crate::lyft::tables`], atomic
+//! - [`writer`]: [`generate`] writes the dataset (tables through [`crate::dataset::tables`], atomic
 //!   writes, tokens derived from the seed).
 //!
 //! What it does not model is listed in each module; in short: no intersections or turns, no

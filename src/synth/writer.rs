@@ -17,7 +17,7 @@
 //! per channel and per instance, timestamps as float microseconds (Unix) and file names in GPS
 //! nanoseconds. Annotations carry `num_lidar_pts` (points on the object, all LiDARs), one
 //! attribute and an empty `visibility_token` (as the real rows). JSON is written as Python's
-//! `json.dump` writes it ([`crate::lyft::tables::to_devkit_json`]); every file is written
+//! `json.dump` writes it ([`crate::dataset::tables::to_devkit_json`]); every file is written
 //! atomically (temp file + rename). Stale files from an earlier run in `out/` are left alone.
 
 use std::path::Path;
@@ -29,12 +29,12 @@ use super::raycast::scan_sample;
 use super::rig::LYFT_MOUNTS;
 use super::scene::{Town, GPS_EPOCH_UNIX_S};
 use super::{Category, SynthConfig, SynthError, SynthSummary};
-use crate::geometry::quat_to_wxyz;
-use crate::io::write_atomic;
-use crate::lyft::tables::{
+use crate::dataset::tables::{
     to_devkit_json, Attribute, CalibratedSensor, Category as CategoryRow, EgoPose, Instance, Log, Map,
     Record, Sample, SampleAnnotation, SampleData, Scene, Sensor, Visibility,
 };
+use crate::geometry::quat_to_wxyz;
+use crate::io::write_atomic;
 
 /// The vehicle whose real calibration the simulated car uses.
 pub const HOST: &str = "a101";

@@ -7,6 +7,7 @@
 use std::sync::Arc;
 
 use super::MlodApp;
+use crate::dataset::Frame;
 use crate::detect::Case;
 use crate::eval::PredOutcome;
 use crate::gui::jobs::{DetectOutput, DetectRequest};
@@ -15,7 +16,6 @@ use crate::gui::state::{
     LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
 };
 use crate::gui::viewport::{box_lines, grid_lines, LineVertex};
-use crate::lyft::Frame;
 use crate::session::BoxLayer;
 
 impl MlodApp {

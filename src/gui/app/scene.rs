@@ -4,7 +4,7 @@
 
 use super::{MlodApp, HISTOGRAM_BINS};
 use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
-use crate::lyft::LidarChannel;
+use crate::dataset::LidarChannel;
 use crate::uncertainty::UNCERTAIN_TRACE;
 
 impl MlodApp {

@@ -12,7 +12,7 @@
 
 use std::path::Path;
 
-use super::error::LyftError;
+use super::error::DatasetError;
 
 /// Bytes per point: five float32.
 pub const POINT_BYTES: usize = 20;
@@ -22,7 +22,7 @@ pub const POINT_BYTES: usize = 20;
 pub struct LoadOptions {
     /// Accept a file whose size is not a multiple of 20 bytes: the incomplete last point is
     /// dropped and [`PointCloud::trimmed_bytes`] says how many bytes were ignored. Off by default:
-    /// such a file is [`LyftError::TruncatedPointCloud`].
+    /// such a file is [`DatasetError::TruncatedPointCloud`].
     pub lenient: bool,
 }
 
@@ -80,16 +80,59 @@ impl PointCloud {
     }
 }
 
+/// How a format lays out its point files. Every format we read stores little-endian float32
+/// records with no header; they differ in the record's width and the intensity's scale.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PointLayout {
+    /// Lyft `.bin` and nuScenes `.pcd.bin`: x, y, z, intensity (0–255), ring.
+    #[default]
+    XyzIntensityRing,
+    /// KITTI `.bin`: x, y, z, reflectance (0–1, read as 0–255). The ring is recovered from the
+    /// scan order where possible, else −1.
+    XyzReflectance,
+}
+
+impl PointLayout {
+    /// Bytes per point.
+    pub fn point_bytes(self) -> usize {
+        match self {
+            Self::XyzIntensityRing => POINT_BYTES,
+            Self::XyzReflectance => 16,
+        }
+    }
+
+    /// What one record holds, for error messages.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::XyzIntensityRing => "5 float32 per point: x, y, z, intensity, ring",
+            Self::XyzReflectance => "4 float32 per point: x, y, z, reflectance (KITTI)",
+        }
+    }
+}
+
 /// Decodes the bytes of a `.bin` file. `path` only names the file in errors.
-pub fn parse_bin(bytes: &[u8], path: &Path, opts: LoadOptions) -> Result<PointCloud, LyftError> {
-    let tail = bytes.len() % POINT_BYTES;
+pub fn parse_bin(bytes: &[u8], path: &Path, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
+    parse_points(bytes, path, opts, PointLayout::XyzIntensityRing)
+}
+
+/// Decodes the bytes of a point file of any [`PointLayout`].
+pub fn parse_points(
+    bytes: &[u8],
+    path: &Path,
+    opts: LoadOptions,
+    layout: PointLayout,
+) -> Result<PointCloud, DatasetError> {
+    let width = layout.point_bytes();
+    let tail = bytes.len() % width;
     if tail != 0 && !opts.lenient {
-        return Err(LyftError::TruncatedPointCloud {
+        return Err(DatasetError::TruncatedPointCloud {
             path: path.to_path_buf(),
             size: bytes.len() as u64,
+            record: width,
+            layout: layout.describe(),
         });
     }
-    let chunks = bytes.chunks_exact(POINT_BYTES);
+    let chunks = bytes.chunks_exact(width);
     let mut cloud = PointCloud::with_capacity(chunks.len());
     cloud.trimmed_bytes = tail;
     for p in chunks {
@@ -100,18 +143,27 @@ pub fn parse_bin(bytes: &[u8], path: &Path, opts: LoadOptions) -> Result<PointCl
             }
         }
         let [x, y, z, i, r] = v;
+        let (i, r) = match layout {
+            PointLayout::XyzIntensityRing => (i, r),
+            PointLayout::XyzReflectance => (i * 255.0, -1.0),
+        };
         if x.is_finite() && y.is_finite() && z.is_finite() && i.is_finite() && r.is_finite() {
             cloud.push(x, y, z, i, r);
         } else {
             cloud.dropped += 1;
         }
     }
+    if layout == PointLayout::XyzReflectance {
+        if let Some(rings) = super::kitti::rings_from_scan_order(&cloud.x, &cloud.y) {
+            cloud.ring = rings;
+        }
+    }
     Ok(cloud)
 }
 
-/// Reads a `.bin` file with one read call. A missing file is [`LyftError::Io`] naming the path.
-pub fn read_bin(path: &Path, opts: LoadOptions) -> Result<PointCloud, LyftError> {
-    let bytes = std::fs::read(path).map_err(|source| LyftError::Io {
+/// Reads a `.bin` file with one read call. A missing file is [`DatasetError::Io`] naming the path.
+pub fn read_bin(path: &Path, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
+    let bytes = std::fs::read(path).map_err(|source| DatasetError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -139,14 +191,14 @@ pub fn encode_bin(cloud: &PointCloud) -> Vec<u8> {
 }
 
 /// Writes a cloud as a `.bin` file, creating its folder.
-pub fn write_bin(path: &Path, cloud: &PointCloud) -> Result<(), LyftError> {
+pub fn write_bin(path: &Path, cloud: &PointCloud) -> Result<(), DatasetError> {
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| LyftError::Io {
+        std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
     }
-    std::fs::write(path, encode_bin(cloud)).map_err(|source| LyftError::Io {
+    std::fs::write(path, encode_bin(cloud)).map_err(|source| DatasetError::Io {
         path: path.to_path_buf(),
         source,
     })
@@ -197,8 +249,42 @@ mod tests {
         let err = parse_bin(&b, Path::new("x/t.bin"), LoadOptions::default()).unwrap_err();
         let msg = err.to_string();
         assert!(msg.contains("x/t.bin") && msg.contains("47"), "{msg}");
+        // The same bytes as KITTI records (16 bytes): 47 is not a multiple of 16 either.
+        let msg = parse_points(
+            &b,
+            Path::new("k.bin"),
+            LoadOptions::default(),
+            PointLayout::XyzReflectance,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(msg.contains("16") && msg.contains("KITTI"), "{msg}");
         let c = parse_bin(&b, Path::new("x/t.bin"), LoadOptions { lenient: true }).unwrap();
         assert_eq!((c.len(), c.trimmed_bytes), (2, 7));
+    }
+
+    #[test]
+    fn kitti_records_scale_reflectance_to_0_255() {
+        let b: Vec<u8> = [
+            [1.0f32, 2.0, 3.0, 0.5],
+            [4.0, 5.0, 6.0, 1.0],
+            [f32::NAN, 0.0, 0.0, 0.2],
+        ]
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+        let c = parse_points(
+            &b,
+            Path::new("k.bin"),
+            LoadOptions::default(),
+            PointLayout::XyzReflectance,
+        )
+        .unwrap();
+        assert_eq!(c.x, [1.0, 4.0]);
+        assert_eq!(c.intensity, [127.5, 255.0]);
+        assert_eq!(c.ring, [-1.0, -1.0]);
+        assert_eq!(c.dropped, 1);
     }
 
     #[test]

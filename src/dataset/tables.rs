@@ -25,7 +25,7 @@ use serde::de::DeserializeOwned;
 use serde::ser::SerializeStruct;
 use serde::{Deserialize, Serialize, Serializer};
 
-use super::error::LyftError;
+use super::error::DatasetError;
 
 /// A row of one of the 13 tables.
 pub trait Record: Serialize + DeserializeOwned + Send + Sync {
@@ -297,11 +297,11 @@ pub struct Table<T> {
 
 impl<T: Record> Table<T> {
     /// Indexes rows by token; two rows with one token are an error.
-    pub fn new(rows: Vec<T>) -> Result<Self, LyftError> {
+    pub fn new(rows: Vec<T>) -> Result<Self, DatasetError> {
         let mut index = HashMap::with_capacity(rows.len());
         for (i, row) in rows.iter().enumerate() {
             if index.insert(row.token().to_owned(), i).is_some() {
-                return Err(LyftError::DuplicateToken {
+                return Err(DatasetError::DuplicateToken {
                     table: T::TABLE,
                     token: row.token().to_owned(),
                 });
@@ -357,21 +357,21 @@ pub struct Tables {
     pub map: Table<Map>,
 }
 
-/// Reads one table file: a missing file is [`LyftError::MissingTable`], bad JSON is
-/// [`LyftError::Json`] with serde_json's line and column.
-pub fn read_table<T: Record>(version_dir: &Path) -> Result<Vec<T>, LyftError> {
+/// Reads one table file: a missing file is [`DatasetError::MissingTable`], bad JSON is
+/// [`DatasetError::Json`] with serde_json's line and column.
+pub fn read_table<T: Record>(version_dir: &Path) -> Result<Vec<T>, DatasetError> {
     let path = version_dir.join(format!("{}.json", T::TABLE));
     let bytes = match std::fs::read(&path) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            return Err(LyftError::MissingTable {
+            return Err(DatasetError::MissingTable {
                 table: T::TABLE,
                 path,
             })
         }
-        Err(source) => return Err(LyftError::Io { path, source }),
+        Err(source) => return Err(DatasetError::Io { path, source }),
     };
-    serde_json::from_slice::<Vec<T>>(&bytes).map_err(|source| LyftError::Json {
+    serde_json::from_slice::<Vec<T>>(&bytes).map_err(|source| DatasetError::Json {
         table: T::TABLE,
         line: source.line(),
         column: source.column(),
@@ -380,7 +380,7 @@ pub fn read_table<T: Record>(version_dir: &Path) -> Result<Vec<T>, LyftError> {
     })
 }
 
-fn load<T: Record>(version_dir: &Path) -> Result<Table<T>, LyftError> {
+fn load<T: Record>(version_dir: &Path) -> Result<Table<T>, DatasetError> {
     Table::new(read_table::<T>(version_dir)?)
 }
 
@@ -388,7 +388,7 @@ impl Tables {
     /// Reads and indexes all 13 tables of a version folder (the folder holding `sample.json`).
     /// The three large tables are parsed in parallel with the rest; when several tables are bad,
     /// the first in [`TABLE_NAMES`] order is reported, independently of thread timing.
-    pub fn load(version_dir: &Path) -> Result<Self, LyftError> {
+    pub fn load(version_dir: &Path) -> Result<Self, DatasetError> {
         let d = version_dir;
         let ((sample_data, sample_annotation), (ego_pose, small)) = rayon::join(
             || rayon::join(|| load::<SampleData>(d), || load::<SampleAnnotation>(d)),
@@ -432,8 +432,8 @@ impl Tables {
     }
 
     /// Writes all 13 tables into `version_dir` (created if needed) with [`write_table`].
-    pub fn write(&self, version_dir: &Path) -> Result<(), LyftError> {
-        std::fs::create_dir_all(version_dir).map_err(|source| LyftError::Io {
+    pub fn write(&self, version_dir: &Path) -> Result<(), DatasetError> {
+        std::fs::create_dir_all(version_dir).map_err(|source| DatasetError::Io {
             path: version_dir.to_path_buf(),
             source,
         })?;
@@ -455,16 +455,16 @@ impl Tables {
 }
 
 /// Writes `<version_dir>/<TABLE>.json` as Python's `json.dump` would (see [`to_devkit_json`]).
-pub fn write_table<T: Record>(version_dir: &Path, rows: &[T]) -> Result<(), LyftError> {
+pub fn write_table<T: Record>(version_dir: &Path, rows: &[T]) -> Result<(), DatasetError> {
     let path = version_dir.join(format!("{}.json", T::TABLE));
-    let bytes = to_devkit_json(rows).map_err(|source| LyftError::Json {
+    let bytes = to_devkit_json(rows).map_err(|source| DatasetError::Json {
         table: T::TABLE,
         path: path.clone(),
         line: 0,
         column: 0,
         source,
     })?;
-    std::fs::write(&path, bytes).map_err(|source| LyftError::Io { path, source })
+    std::fs::write(&path, bytes).map_err(|source| DatasetError::Io { path, source })
 }
 
 /// Serializes a value as Python's `json.dump(obj, f)` followed by a newline: one line,

@@ -17,7 +17,10 @@ use std::path::{Component, Path, PathBuf};
 
 use serde::Serialize;
 
-use super::error::LyftError;
+use super::categories;
+use super::error::DatasetError;
+use super::kitti::{self, EvalRegion, FrameIssue};
+use super::pointcloud::PointLayout;
 use super::tables::{Record, Tables};
 
 /// The three LiDARs of the Lyft car, in the paper's order: LiDAR-Top (primary, base frame),
@@ -82,12 +85,50 @@ pub struct SampleSummary {
     pub num_boxes: usize,
 }
 
+/// The on-disk format a dataset was read from. Only [`Dataset::open`] and the notes shown to the
+/// user look at it: everything downstream reads frames the same way whatever their format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DatasetFormat {
+    /// Lyft Level 5 (`v1.01-train/`) or a dataset our simulator wrote.
+    Lyft,
+    /// nuScenes (`v1.0-mini/`, `v1.0-trainval/`, …): the same 13 tables, other category names.
+    NuScenes,
+    /// The KITTI 3D object benchmark (`training/velodyne`, `label_2`, `calib`).
+    Kitti,
+}
+
+impl DatasetFormat {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Lyft => "Lyft Level 5",
+            Self::NuScenes => "nuScenes",
+            Self::Kitti => "KITTI object",
+        }
+    }
+}
+
+/// A source category our names do not cover, with how many boxes carry it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct UnmappedCategory {
+    pub name: String,
+    pub boxes: usize,
+}
+
 /// An opened dataset: tables, indexes, sample order.
 #[derive(Debug, Clone)]
 pub struct Dataset {
     root: PathBuf,
     version_dir: PathBuf,
     tables: Tables,
+    format: DatasetFormat,
+    layout: PointLayout,
+    /// Per sample: where evaluation looks (KITTI: camera 2's view minus DontCare regions).
+    regions: HashMap<String, EvalRegion>,
+    /// Per sample: a problem found while indexing that stops it loading (KITTI calib/labels).
+    issues: HashMap<String, FrameIssue>,
+    /// Things the user should know about the dataset as a whole (which split was opened, …).
+    notes: Vec<String>,
     /// sample token → positions of its key-frame sample_data rows, in file order.
     keyframes_by_sample: HashMap<String, Vec<usize>>,
     /// sample token → positions of its sample_annotation rows, in file order.
@@ -97,18 +138,53 @@ pub struct Dataset {
 }
 
 impl Dataset {
-    /// Opens a dataset given its root (the folder holding `v1.01-train/`, `lidar/`, `maps/`) or
-    /// the version folder itself.
-    pub fn open(path: impl AsRef<Path>) -> Result<Self, LyftError> {
-        let version_dir = find_version_dir(path.as_ref())?;
+    /// Opens a dataset in whatever format the folder holds:
+    /// - Lyft or nuScenes: the root (the folder holding `v1.01-train/` or `v1.0-mini/`, `lidar/` or
+    ///   `samples/`, `maps/`) or the version folder itself;
+    /// - KITTI object: the split folder (`training/`) or the folder above it.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, DatasetError> {
+        let path = path.as_ref();
+        let version_dir = match find_version_dir(path) {
+            Ok(v) => v,
+            Err(DatasetError::VersionFolderNotFound { .. }) if kitti::find_layout(path).is_some() => {
+                return Self::open_kitti(path);
+            }
+            Err(e) => return Err(e),
+        };
         let root = match version_dir.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
         let tables = Tables::load(&version_dir)?;
-        Ok(Self::from_tables(root, version_dir, tables))
+        let mut ds = Self::from_tables(root, version_dir, tables);
+        // nuScenes names its version folders v1.0-*; its categories are dotted (vehicle.car).
+        let version_name = ds
+            .version_dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if version_name.starts_with("v1.0-") || ds.tables.category.rows().iter().any(|c| c.name.contains('.'))
+        {
+            ds.format = DatasetFormat::NuScenes;
+        }
+        Ok(ds)
     }
 
+    fn open_kitti(path: &Path) -> Result<Self, DatasetError> {
+        let Some(layout) = kitti::find_layout(path) else {
+            return Err(DatasetError::VersionFolderNotFound {
+                path: path.to_path_buf(),
+            });
+        };
+        let index = kitti::open(&layout)?;
+        let mut ds = Self::from_tables(layout.split_dir.clone(), layout.split_dir, index.tables);
+        ds.format = DatasetFormat::Kitti;
+        ds.layout = PointLayout::XyzReflectance;
+        ds.regions = index.regions;
+        ds.issues = index.issues;
+        ds.notes = index.notes;
+        Ok(ds)
+    }
     /// Builds the indexes over tables already in memory. `root` is where the tables' filenames
     /// are resolved.
     pub fn from_tables(root: PathBuf, version_dir: PathBuf, tables: Tables) -> Self {
@@ -133,6 +209,11 @@ impl Dataset {
             root,
             version_dir,
             tables,
+            format: DatasetFormat::Lyft,
+            layout: PointLayout::default(),
+            regions: HashMap::new(),
+            issues: HashMap::new(),
+            notes: Vec::new(),
             keyframes_by_sample,
             annotations_by_sample,
             sample_order,
@@ -147,6 +228,85 @@ impl Dataset {
     /// The folder holding the JSON tables.
     pub fn version_dir(&self) -> &Path {
         &self.version_dir
+    }
+
+    /// The format the dataset was read from.
+    pub fn format(&self) -> DatasetFormat {
+        self.format
+    }
+
+    /// How its point files are laid out.
+    pub fn point_layout(&self) -> PointLayout {
+        self.layout
+    }
+
+    /// Where evaluation looks in a sample, when the format restricts it (KITTI: camera 2's view).
+    pub fn eval_region(&self, sample_token: &str) -> Option<&EvalRegion> {
+        self.regions.get(sample_token)
+    }
+
+    /// The problem that stops a sample loading, found while indexing (KITTI calib or labels).
+    pub fn sample_issue(&self, sample_token: &str) -> Option<&FrameIssue> {
+        self.issues.get(sample_token)
+    }
+
+    /// What the user should know about the dataset as a whole: which split or folder was opened,
+    /// categories that are not ours, samples that will not load.
+    pub fn notes(&self) -> Vec<String> {
+        let mut out = self.notes.clone();
+        let unmapped = self.unmapped_categories();
+        if !unmapped.is_empty() {
+            out.push(format!(
+                "{}: {} categor{} not among ours (kept with their own names, never scored): {}",
+                self.format.name(),
+                unmapped.len(),
+                if unmapped.len() == 1 { "y is" } else { "ies are" },
+                unmapped
+                    .iter()
+                    .map(|u| format!("{} ({} boxes)", u.name, u.boxes))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
+        if !self.issues.is_empty() {
+            let mut ids: Vec<&String> = self.issues.keys().collect();
+            ids.sort();
+            let first = ids.first().and_then(|id| self.issues.get(*id).map(|i| (id, i)));
+            if let Some((id, issue)) = first {
+                out.push(format!(
+                    "{} sample{} will not load (first: {id}: {})",
+                    ids.len(),
+                    if ids.len() == 1 { "" } else { "s" },
+                    issue.to_error()
+                ));
+            }
+        }
+        out
+    }
+
+    /// Source categories that do not map onto ours, with their box counts, by name.
+    pub fn unmapped_categories(&self) -> Vec<UnmappedCategory> {
+        let t = &self.tables;
+        let mut counts: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
+        for a in t.sample_annotation.rows() {
+            let Some(cat) = t
+                .instance
+                .get(&a.instance_token)
+                .and_then(|i| t.category.get(&i.category_token))
+            else {
+                continue;
+            };
+            if categories::canonical(&cat.name).is_none() {
+                *counts.entry(cat.name.as_str()).or_default() += 1;
+            }
+        }
+        counts
+            .into_iter()
+            .map(|(name, boxes)| UnmappedCategory {
+                name: name.to_owned(),
+                boxes,
+            })
+            .collect()
     }
 
     /// All tables, for direct access to rows.
@@ -245,7 +405,7 @@ impl Dataset {
     /// Resolves a filename from a table row of `T` (whose token is `token`) against the root.
     /// Absolute paths, drive prefixes and any `..` component are rejected, so that every file
     /// read stays inside the dataset root (symbolic links the user placed there are followed).
-    pub fn resolve<T: Record>(&self, token: &str, filename: &str) -> Result<PathBuf, LyftError> {
+    pub fn resolve<T: Record>(&self, token: &str, filename: &str) -> Result<PathBuf, DatasetError> {
         resolve_inside(&self.root, T::TABLE, token, filename)
     }
 }
@@ -256,8 +416,8 @@ pub fn resolve_inside(
     table: &'static str,
     token: &str,
     filename: &str,
-) -> Result<PathBuf, LyftError> {
-    let reject = |reason: &'static str| LyftError::UnsafePath {
+) -> Result<PathBuf, DatasetError> {
+    let reject = |reason: &'static str| DatasetError::UnsafePath {
         table,
         token: token.to_owned(),
         filename: filename.to_owned(),
@@ -291,11 +451,11 @@ pub fn resolve_inside(
 }
 
 /// The folder holding `sample.json`: `path` itself or exactly one folder directly inside it.
-fn find_version_dir(path: &Path) -> Result<PathBuf, LyftError> {
+fn find_version_dir(path: &Path) -> Result<PathBuf, DatasetError> {
     if path.join("sample.json").is_file() {
         return Ok(path.to_path_buf());
     }
-    let entries = std::fs::read_dir(path).map_err(|source| LyftError::Io {
+    let entries = std::fs::read_dir(path).map_err(|source| DatasetError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -306,11 +466,11 @@ fn find_version_dir(path: &Path) -> Result<PathBuf, LyftError> {
         .collect();
     candidates.sort();
     match candidates.len() {
-        0 => Err(LyftError::VersionFolderNotFound {
+        0 => Err(DatasetError::VersionFolderNotFound {
             path: path.to_path_buf(),
         }),
         1 => Ok(candidates.remove(0)),
-        _ => Err(LyftError::AmbiguousVersionFolder {
+        _ => Err(DatasetError::AmbiguousVersionFolder {
             path: path.to_path_buf(),
             candidates: candidates
                 .iter()

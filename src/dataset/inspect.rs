@@ -11,9 +11,9 @@
 
 use serde::Serialize;
 
-use super::dataset::{Dataset, SampleSummary};
-use super::error::LyftError;
+use super::error::DatasetError;
 use super::frame::LidarInfo;
+use super::index::{Dataset, SampleSummary};
 use super::pointcloud::LoadOptions;
 use crate::geometry::{quat_to_wxyz, Pose};
 
@@ -27,7 +27,7 @@ pub struct InspectReport {
     pub boxes: Vec<InspectBox>,
     /// Point clouds that could not be read (missing, truncated, unreadable); not serialized.
     #[serde(skip)]
-    pub errors: Vec<LyftError>,
+    pub errors: Vec<DatasetError>,
     /// Non-fatal notes (unknown LiDAR channels, trimmed files); not serialized.
     #[serde(skip)]
     pub warnings: Vec<String>,
@@ -88,7 +88,7 @@ pub struct InspectBox {
 /// Inspects a sample (the first in scene order when `sample` is `None`), reading point clouds
 /// strictly. Errors only when the sample itself cannot be built (unknown token, no LIDAR_TOP,
 /// broken tables); unreadable point clouds are collected in [`InspectReport::errors`].
-pub fn inspect(dataset: &Dataset, sample: Option<&str>) -> Result<InspectReport, LyftError> {
+pub fn inspect(dataset: &Dataset, sample: Option<&str>) -> Result<InspectReport, DatasetError> {
     inspect_with(dataset, sample, LoadOptions::default())
 }
 
@@ -97,12 +97,14 @@ pub fn inspect_with(
     dataset: &Dataset,
     sample: Option<&str>,
     opts: LoadOptions,
-) -> Result<InspectReport, LyftError> {
+) -> Result<InspectReport, DatasetError> {
     let token = match sample {
         Some(t) => t,
-        None => dataset.first_sample_token().ok_or_else(|| LyftError::NoSamples {
-            path: dataset.root().to_path_buf(),
-        })?,
+        None => dataset
+            .first_sample_token()
+            .ok_or_else(|| DatasetError::NoSamples {
+                path: dataset.root().to_path_buf(),
+            })?,
     };
     let info = dataset.frame_info(token)?;
     let mut errors = Vec::new();

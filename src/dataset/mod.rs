@@ -14,18 +14,27 @@
 //! its points in its own frame and its nominal extrinsic T^b_{l_i}, and the ground-truth boxes
 //! moved into the base frame exactly as `lyft_dataset_sdk` does. Quaternions are [w, x, y, z];
 //! annotation sizes are [w, l, h] on disk and (l, w, h) in [`crate::geometry::Box3d`]; timestamps
-//! are float microseconds. Errors are [`LyftError`], naming the file, table, token or field.
+//! are float microseconds. Errors are [`DatasetError`], naming the file, table, token or field.
 
-pub mod dataset;
+pub mod categories;
 pub mod error;
 pub mod frame;
+pub mod index;
 pub mod inspect;
+pub mod kitti;
 pub mod pointcloud;
 pub mod tables;
 
-pub use dataset::{resolve_inside, train_validation_split, Dataset, LidarChannel, SampleSummary};
-pub use error::LyftError;
+pub use error::DatasetError;
 pub use frame::{pyquaternion_yaw, Frame, FrameInfo, GtBox, LidarInfo, LidarScan};
+pub use index::{
+    resolve_inside, train_validation_split, Dataset, DatasetFormat, LidarChannel, SampleSummary,
+    UnmappedCategory,
+};
 pub use inspect::{inspect, inspect_with, list, InspectBox, InspectExtrinsic, InspectLidar, InspectReport};
-pub use pointcloud::{encode_bin, parse_bin, read_bin, write_bin, LoadOptions, PointCloud, POINT_BYTES};
+pub use kitti::{EvalRegion, RegionVerdict};
+pub use pointcloud::{
+    encode_bin, parse_bin, parse_points, read_bin, write_bin, LoadOptions, PointCloud, PointLayout,
+    POINT_BYTES,
+};
 pub use tables::{to_devkit_json, write_table, Record, Table, Tables};

@@ -23,9 +23,11 @@ use std::path::PathBuf;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::dataset::{Dataset, LidarChannel};
-use super::error::LyftError;
-use super::pointcloud::{parse_bin, LoadOptions, PointCloud};
+use super::categories;
+use super::error::DatasetError;
+use super::index::{Dataset, LidarChannel};
+use super::kitti::EvalRegion;
+use super::pointcloud::{parse_points, LoadOptions, PointCloud, PointLayout};
 use super::tables::{CalibratedSensor, EgoPose, Record, SampleAnnotation, SampleData};
 use crate::geometry::{quat_from_wxyz, Box3d, Pose};
 
@@ -48,26 +50,28 @@ pub struct LidarInfo {
     pub ego_to_global: Pose,
     /// T^b_l: sensor frame → base frame (LIDAR_TOP). Identity for LIDAR_TOP itself.
     pub extrinsic: Pose,
+    /// How its point file is laid out (the dataset's format decides).
+    pub layout: PointLayout,
 }
 
 impl LidarInfo {
-    /// Reads this sweep's `.bin`. A missing file is [`LyftError::MissingPointCloud`] naming the
+    /// Reads this sweep's `.bin`. A missing file is [`DatasetError::MissingPointCloud`] naming the
     /// path and the sample_data token.
-    pub fn load_points(&self, opts: LoadOptions) -> Result<PointCloud, LyftError> {
+    pub fn load_points(&self, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
         let bytes = std::fs::read(&self.path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
-                LyftError::MissingPointCloud {
+                DatasetError::MissingPointCloud {
                     path: self.path.clone(),
                     token: self.sample_data_token.clone(),
                 }
             } else {
-                LyftError::Io {
+                DatasetError::Io {
                     path: self.path.clone(),
                     source,
                 }
             }
         })?;
-        parse_bin(&bytes, &self.path, opts)
+        parse_points(&bytes, &self.path, opts, self.layout)
     }
 }
 
@@ -76,8 +80,11 @@ impl LidarInfo {
 pub struct GtBox {
     pub annotation_token: String,
     pub instance_token: String,
-    /// Category name via instance → category (`car`, `pedestrian`, ...).
+    /// Our category name (`car`, `pedestrian`, ...): the source's name mapped by
+    /// [`super::categories`], or the source's own name when it has no counterpart.
     pub category: String,
+    /// The name as the dataset writes it (`vehicle.car`, `Car`, `car`).
+    pub source_category: String,
     /// Centre, size (l, w, h) and yaw in the base frame.
     pub box3d: Box3d,
     /// The full orientation in the base frame (roll and pitch kept), box frame → base frame.
@@ -110,6 +117,9 @@ pub struct FrameInfo {
     /// LIDAR_FRONT_LEFT then LIDAR_FRONT_RIGHT, those present.
     pub auxiliaries: Vec<LidarInfo>,
     pub boxes: Vec<GtBox>,
+    /// Where evaluation looks, when the format restricts it (KITTI: camera 2's view without its
+    /// DontCare regions); `None`: everywhere.
+    pub eval_region: Option<EvalRegion>,
     /// Things that did not stop loading (an unknown LiDAR channel, a trimmed file).
     pub warnings: Vec<String>,
 }
@@ -141,6 +151,9 @@ pub struct Frame {
     pub auxiliaries: Vec<LidarScan>,
     /// Ground truth in the base frame.
     pub boxes: Vec<GtBox>,
+    /// Where evaluation looks, when the format restricts it (KITTI: camera 2's view without its
+    /// DontCare regions); `None`: everywhere.
+    pub eval_region: Option<EvalRegion>,
     /// Things that did not stop loading (an unknown LiDAR channel, a trimmed file).
     pub warnings: Vec<String>,
 }
@@ -161,6 +174,7 @@ impl LidarScan {
                 sensor_to_ego: extrinsic,
                 ego_to_global: Pose::identity(),
                 extrinsic,
+                layout: PointLayout::default(),
             },
             points,
         }
@@ -182,6 +196,7 @@ impl Frame {
             primary,
             auxiliaries,
             boxes,
+            eval_region: None,
             warnings: Vec::new(),
         }
     }
@@ -199,6 +214,20 @@ impl Frame {
     /// Only LIDAR_TOP.
     pub fn is_single_lidar(&self) -> bool {
         self.auxiliaries.is_empty()
+    }
+
+    /// The auxiliary LiDARs this sample lacks (of LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT).
+    pub fn missing_auxiliaries(&self) -> Vec<LidarChannel> {
+        [LidarChannel::FrontLeft, LidarChannel::FrontRight]
+            .into_iter()
+            .filter(|c| self.lidar(*c).is_none())
+            .collect()
+    }
+
+    /// Whether a box counts in evaluation of this frame (always, unless the format restricts
+    /// evaluation to a region: KITTI's camera view).
+    pub fn evaluates(&self, b: &Box3d) -> bool {
+        self.eval_region.as_ref().is_none_or(|r| r.contains(b))
     }
 
     /// Points kept over all LiDARs.
@@ -223,7 +252,7 @@ fn pose_from_row(
     token: &str,
     translation: [f64; 3],
     rotation: [f64; 4],
-) -> Result<Pose, LyftError> {
+) -> Result<Pose, DatasetError> {
     let t = finite3(table, token, "translation", translation)?;
     let q = quat(table, token, "rotation", rotation)?;
     Ok(Isometry3::from_parts(Translation3::from(t), q))
@@ -234,11 +263,11 @@ fn finite3(
     token: &str,
     field: &'static str,
     v: [f64; 3],
-) -> Result<Vector3<f64>, LyftError> {
+) -> Result<Vector3<f64>, DatasetError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(Vector3::from(v))
     } else {
-        Err(LyftError::NonFinite {
+        Err(DatasetError::NonFinite {
             table,
             token: token.to_owned(),
             field,
@@ -252,8 +281,8 @@ fn quat(
     token: &str,
     field: &'static str,
     v: [f64; 4],
-) -> Result<UnitQuaternion<f64>, LyftError> {
-    quat_from_wxyz(v).ok_or_else(|| LyftError::BadQuaternion {
+) -> Result<UnitQuaternion<f64>, DatasetError> {
+    quat_from_wxyz(v).ok_or_else(|| DatasetError::BadQuaternion {
         table,
         token: token.to_owned(),
         field,
@@ -267,8 +296,8 @@ fn dangling(
     field: &'static str,
     target: &'static str,
     missing: &str,
-) -> LyftError {
-    LyftError::DanglingReference {
+) -> DatasetError {
+    DatasetError::DanglingReference {
         table,
         token: token.to_owned(),
         field,
@@ -279,14 +308,17 @@ fn dangling(
 
 impl Dataset {
     /// The sample's LiDARs, extrinsics and ground-truth boxes, without reading any point cloud.
-    pub fn frame_info(&self, sample_token: &str) -> Result<FrameInfo, LyftError> {
+    pub fn frame_info(&self, sample_token: &str) -> Result<FrameInfo, DatasetError> {
         let t = self.tables();
         let sample = t
             .sample
             .get(sample_token)
-            .ok_or_else(|| LyftError::UnknownSample {
+            .ok_or_else(|| DatasetError::UnknownSample {
                 token: sample_token.to_owned(),
             })?;
+        if let Some(issue) = self.sample_issue(sample_token) {
+            return Err(issue.to_error());
+        }
         let mut warnings = Vec::new();
 
         // The key-frame LiDAR sweeps, one per known channel.
@@ -331,7 +363,7 @@ impl Dataset {
             #[allow(clippy::indexing_slicing)]
             let slot = &mut found[channel as usize];
             if let Some((first, _)) = slot {
-                return Err(LyftError::DuplicateLidar {
+                return Err(DatasetError::DuplicateLidar {
                     sample_token: sample_token.to_owned(),
                     channel: channel.as_str(),
                     first: first.token.clone(),
@@ -342,7 +374,7 @@ impl Dataset {
         }
         let [top, left, right] = found;
         let Some(top) = top else {
-            return Err(LyftError::NoLidarTop {
+            return Err(DatasetError::NoLidarTop {
                 sample_token: sample_token.to_owned(),
             });
         };
@@ -362,7 +394,7 @@ impl Dataset {
                 pose_from_row(CalibratedSensor::TABLE, &cs.token, cs.translation, cs.rotation)?;
             let ego_to_global = pose_from_row(EgoPose::TABLE, &ego.token, ego.translation, ego.rotation)?;
             let path = self.resolve::<SampleData>(&sd.token, &sd.filename)?;
-            Ok::<_, LyftError>(LidarInfo {
+            Ok::<_, DatasetError>(LidarInfo {
                 channel,
                 sample_data_token: sd.token.clone(),
                 filename: sd.filename.clone(),
@@ -373,6 +405,7 @@ impl Dataset {
                 sensor_to_ego,
                 ego_to_global,
                 extrinsic: Pose::identity(),
+                layout: self.point_layout(),
             })
         };
         let primary = lidar(LidarChannel::Top, top)?;
@@ -424,7 +457,8 @@ impl Dataset {
             boxes.push(GtBox {
                 annotation_token: ann.token.clone(),
                 instance_token: ann.instance_token.clone(),
-                category: category.name.clone(),
+                category: categories::display_name(&category.name),
+                source_category: category.name.clone(),
                 box3d: Box3d::from_lyft(
                     [c_base.x, c_base.y, c_base.z],
                     [size.x, size.y, size.z],
@@ -442,18 +476,19 @@ impl Dataset {
             primary,
             auxiliaries,
             boxes,
+            eval_region: self.eval_region(sample_token).cloned(),
             warnings,
         })
     }
 
     /// The sample with every LiDAR's points (strict: truncated files are errors).
-    pub fn frame(&self, sample_token: &str) -> Result<Frame, LyftError> {
+    pub fn frame(&self, sample_token: &str) -> Result<Frame, DatasetError> {
         self.frame_with(sample_token, LoadOptions::default())
     }
 
     /// The sample with every LiDAR's points, read in parallel. The first failing LiDAR (in
     /// primary, left, right order) is the error.
-    pub fn frame_with(&self, sample_token: &str, opts: LoadOptions) -> Result<Frame, LyftError> {
+    pub fn frame_with(&self, sample_token: &str, opts: LoadOptions) -> Result<Frame, DatasetError> {
         let info = self.frame_info(sample_token)?;
         let FrameInfo {
             sample_token,
@@ -462,28 +497,30 @@ impl Dataset {
             primary,
             auxiliaries,
             boxes,
+            eval_region,
             mut warnings,
         } = info;
         let mut infos = Vec::with_capacity(1 + auxiliaries.len());
         infos.push(primary);
         infos.extend(auxiliaries);
-        let clouds: Vec<Result<PointCloud, LyftError>> =
+        let clouds: Vec<Result<PointCloud, DatasetError>> =
             infos.par_iter().map(|l| l.load_points(opts)).collect();
         let mut scans = Vec::with_capacity(infos.len());
         for (info, cloud) in infos.into_iter().zip(clouds) {
             let points = cloud?;
             if points.trimmed_bytes > 0 {
                 warnings.push(format!(
-                    "{}: ignored the last {} bytes (size not a multiple of 20)",
+                    "{}: ignored the last {} bytes (size not a multiple of {})",
                     info.path.display(),
-                    points.trimmed_bytes
+                    points.trimmed_bytes,
+                    info.layout.point_bytes()
                 ));
             }
             scans.push(LidarScan { info, points });
         }
         let mut scans = scans.into_iter();
         let Some(primary) = scans.next() else {
-            return Err(LyftError::NoLidarTop { sample_token });
+            return Err(DatasetError::NoLidarTop { sample_token });
         };
         Ok(Frame {
             sample_token,
@@ -492,6 +529,7 @@ impl Dataset {
             primary,
             auxiliaries: scans.collect(),
             boxes,
+            eval_region,
             warnings,
         })
     }

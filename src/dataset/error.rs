@@ -6,9 +6,12 @@ use std::path::PathBuf;
 
 /// Everything that can go wrong while reading a Lyft/nuScenes-format dataset.
 #[derive(Debug, thiserror::Error)]
-pub enum LyftError {
+pub enum DatasetError {
     /// Neither the given folder nor any folder directly inside it holds `sample.json`.
-    #[error("no Lyft version folder (a folder holding sample.json) at or directly inside {path}")]
+    #[error(
+        "no dataset at {path}: expected a Lyft or nuScenes version folder (a folder holding sample.json) \
+         at or directly inside it, or a KITTI object folder (velodyne/, calib/, label_2/, or training/ holding them)"
+    )]
     VersionFolderNotFound { path: PathBuf },
 
     /// The given folder holds several version folders and it is not clear which one is meant.
@@ -92,12 +95,25 @@ pub enum LyftError {
     #[error("point cloud {path} (sample_data {token}) is missing")]
     MissingPointCloud { path: PathBuf, token: String },
 
-    /// A `.bin` file whose size is not a whole number of 20-byte points.
+    /// A point file whose size is not a whole number of records.
     #[error(
-        "point cloud {path}: size {size} bytes is not a multiple of 20 \
-         (5 float32 per point: x, y, z, intensity, ring); the file is truncated or not a Lyft .bin"
+        "point cloud {path}: size {size} bytes is not a multiple of {record} \
+         ({layout}); the file is truncated or of another format"
     )]
-    TruncatedPointCloud { path: PathBuf, size: u64 },
+    TruncatedPointCloud {
+        path: PathBuf,
+        size: u64,
+        record: usize,
+        layout: &'static str,
+    },
+
+    /// A KITTI label or calib file that cannot be read (line 0: the file as a whole).
+    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
+    Kitti {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
 
     /// A quaternion field that is not finite or not of unit norm.
     #[error("{table} {token}: field {field} = {value:?} is not a unit quaternion [w, x, y, z]")]
