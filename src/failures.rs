@@ -115,8 +115,9 @@ fn outcomes(
     gts: &[Detection],
     rule: &MatchRule,
     min_score: f32,
+    region: Option<&crate::dataset::EvalRegion>,
 ) -> (Vec<Option<f64>>, Vec<usize>) {
-    let m = match_drawn(dets, gts, rule, min_score, |_| true);
+    let m = match_drawn(dets, gts, rule, min_score, region, |_| true);
     let ious = m
         .gts
         .iter()
@@ -160,8 +161,9 @@ fn scan_sample(
     zero.perturbation.alpha = 0.0;
     let now_dets = detector.detect(&frame, &cfg.params)?;
     let zero_dets = detector.detect(&frame, &zero)?;
-    let (now, fps) = outcomes(&now_dets, &gts, &rule, cfg.min_score);
-    let (then, fps_zero) = outcomes(&zero_dets, &gts, &rule, cfg.min_score);
+    let region = frame.eval_region.as_ref();
+    let (now, fps) = outcomes(&now_dets, &gts, &rule, cfg.min_score, region);
+    let (then, fps_zero) = outcomes(&zero_dets, &gts, &rule, cfg.min_score, region);
     let mut missed = Vec::new();
     let mut drops = Vec::new();
     for (j, g) in gt_boxes.iter().enumerate() {

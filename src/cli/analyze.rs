@@ -42,7 +42,7 @@ pub fn analyze(cmd: AnalyzeCommand) -> Result<()> {
                     a.case
                 );
             }
-            let dataset = mlod::dataset::Dataset::open(&a.dataset)?;
+            let dataset = super::open_dataset(&a.dataset)?;
             let mlod_det = mlod::refine::load_mlod(&a.run.models_dir(), a.case, a.run.vote_iou)?;
             let params = a.run.fuse_params()?;
             let rows = active_points(&dataset, &mlod_det, &params, a.samples)?;

@@ -159,7 +159,7 @@ fn tokens(dataset: &Dataset, args: &CalibrateArgs) -> Result<Vec<String>> {
 }
 
 pub fn run(args: CalibrateArgs) -> Result<()> {
-    let dataset = Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     let tokens = tokens(&dataset, &args)?;
     let config = IcpConfig::with_overrides(&args.icp)?;
     let mut runs = Vec::new();

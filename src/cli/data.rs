@@ -83,7 +83,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
 }
 
 pub fn inspect(args: InspectArgs) -> Result<()> {
-    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     if args.list {
         let samples = mlod::dataset::list(&dataset);
         if args.json {

@@ -94,11 +94,14 @@ pub enum DetectFormat {
 }
 
 pub fn detect(a: DetectArgs) -> Result<()> {
-    let dataset = mlod::dataset::Dataset::open(&a.dataset)?;
+    let dataset = super::open_dataset(&a.dataset)?;
     let token = sample_token(&dataset, a.sample.as_deref())?;
     let frame = dataset.frame(&token)?;
     let params = a.run.fuse_params()?;
     let detector = a.run.load(a.case)?;
+    if let Some(note) = a.case.missing_lidars_note(&frame) {
+        eprintln!("note: {note}");
+    }
     let t0 = std::time::Instant::now();
     let dets = detector.detect(&frame, &params)?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;

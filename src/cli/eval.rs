@@ -87,10 +87,21 @@ pub fn detect_case(
     use rayon::prelude::*;
     let detector = run.load(case)?;
     let bar = indicatif::ProgressBar::new(tokens.len() as u64);
+    // Samples lacking LiDARs the case reads, and the first one's note.
+    let lacking = std::sync::atomic::AtomicUsize::new(0);
+    let first_note: std::sync::Mutex<Option<(String, String)>> = std::sync::Mutex::new(None);
     let dets = tokens
         .par_iter()
         .map(|tok| -> Result<(String, Vec<mlod::detect::Detection>)> {
             let frame = dataset.frame(tok)?;
+            if let Some(note) = case.missing_lidars_note(&frame) {
+                lacking.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if let Ok(mut first) = first_note.lock() {
+                    if first.as_ref().is_none_or(|(t, _)| tok < t) {
+                        *first = Some((tok.clone(), note));
+                    }
+                }
+            }
             let d = detector
                 .detect(&frame, params)
                 .with_context(|| format!("{} on sample {tok}", case.paper_name()))?;
@@ -99,6 +110,13 @@ pub fn detect_case(
         })
         .collect::<Result<std::collections::HashMap<_, _>>>()?;
     bar.finish_and_clear();
+    let lacking = lacking.into_inner();
+    if let Some((_, note)) = first_note.into_inner().ok().flatten() {
+        eprintln!(
+            "note: {lacking} of {} samples lack LiDARs the case reads; {note}",
+            tokens.len()
+        );
+    }
     Ok(dets)
 }
 
@@ -120,7 +138,7 @@ pub fn eval_cmd(args: EvalArgs) -> Result<()> {
     if args.match_range.is_nan() || args.match_range <= 0.0 {
         bail!("--match-range must be positive, got {}", args.match_range);
     }
-    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     let mut opts = EvalOptions {
         samples: args.samples,
         validation_only: args.validation,
@@ -179,6 +197,12 @@ pub fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()
         "{} samples, {} predictions used ({} rejected)",
         report.samples, report.predictions.accepted, report.predictions.rejected
     );
+    if report.predictions.outside_region > 0 {
+        println!(
+            "{} predictions outside the evaluated region (KITTI: camera 2's view, DontCare regions) ignored",
+            report.predictions.outside_region
+        );
+    }
     println!("\nKITTI-style AP_3D (%), {} interpolation", args.interpolation);
     println!(
         "{:<20} {:>7} {:>7} {:>7}   {:>7} {:>7} {:>7}",

@@ -49,7 +49,7 @@ pub fn run(args: ExportArgs) -> Result<()> {
             )
         })?,
     };
-    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     let token = sample_token(&dataset, args.sample.as_deref())
         .with_context(|| format!("{}", args.dataset.display()))?;
     let frame = dataset.frame(&token)?;

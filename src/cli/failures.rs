@@ -4,11 +4,10 @@
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 
 use super::args::parse_unit;
 use super::detect::DetectorRun;
-use mlod::dataset::Dataset;
 use mlod::detect::Case;
 use mlod::failures::{scan, ScanConfig};
 
@@ -46,7 +45,7 @@ pub struct FailuresArgs {
 }
 
 pub fn run(a: FailuresArgs) -> Result<()> {
-    let dataset = Dataset::open(&a.dataset).with_context(|| format!("opening {}", a.dataset.display()))?;
+    let dataset = super::open_dataset(&a.dataset)?;
     let all = dataset.samples();
     let chosen: Vec<String> = match &a.scene {
         Some(scene) => {

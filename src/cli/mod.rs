@@ -129,3 +129,15 @@ Examples:
 pub const ANALYZE_EXAMPLES: &str = "\
 Examples:
   mlod analyze active-points --dataset data/test --case mlod-i --alpha 0.1 --seed 0 --out out/active";
+
+/// Opens a dataset in any format the folder holds and prints what the user should know about it
+/// on stderr (`note: …`: the split opened, categories not among ours, samples that will not load).
+pub fn open_dataset(path: &std::path::Path) -> anyhow::Result<mlod::dataset::Dataset> {
+    use anyhow::Context;
+    let dataset =
+        mlod::dataset::Dataset::open(path).with_context(|| format!("opening dataset {}", path.display()))?;
+    for note in dataset.notes() {
+        eprintln!("note: {note}");
+    }
+    Ok(dataset)
+}

@@ -168,7 +168,7 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
     use rayon::prelude::*;
     use std::collections::{BTreeMap, HashMap};
     let models = a.models.clone().unwrap_or_else(default_models_dir);
-    let dataset = mlod::dataset::Dataset::open(&a.dataset)?;
+    let dataset = super::open_dataset(&a.dataset)?;
     let opts = mlod::eval::EvalOptions {
         samples: a.samples,
         validation_only: true,

@@ -51,7 +51,7 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
     if bands.iter().any(|b| !b.is_finite() || *b <= 0.0) || bands.windows(2).any(|w| w[1] <= w[0]) {
         bail!("--recall-bands must be positive and increasing, got {bands:?}");
     }
-    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     let opts = mlod::eval::EvalOptions {
         samples: args.samples,
         validation_only: args.validation,

@@ -220,7 +220,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
     use std::collections::BTreeMap;
     let models = a.models.clone().unwrap_or_else(default_models_dir);
     let mut manifest = Manifest::load(&models)?;
-    let dataset = mlod::dataset::Dataset::open(&a.dataset)?;
+    let dataset = super::open_dataset(&a.dataset)?;
     let opts = mlod::eval::EvalOptions {
         samples: a.samples,
         validation_only: true,

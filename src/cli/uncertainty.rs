@@ -185,7 +185,7 @@ pub fn plane_fit(args: PlaneFitArgs) -> Result<()> {
 pub fn fuse_cmd(args: FuseArgs) -> Result<()> {
     use mlod::color::{histogram, ColorParams};
     use mlod::pipeline::{box_stats, fuse, FuseParams};
-    let dataset = mlod::dataset::Dataset::open(&args.dataset)?;
+    let dataset = super::open_dataset(&args.dataset)?;
     let token = sample_token(&dataset, args.sample.as_deref())?;
     let frame = dataset.frame(&token)?;
     let params = FuseParams {

@@ -279,6 +279,57 @@ impl Case {
         }
     }
 
+    /// The LiDARs this case reads: its one LiDAR for a single-LiDAR case, all three otherwise.
+    pub fn lidars(self) -> Vec<LidarChannel> {
+        match self.channel() {
+            Some(c) => vec![c],
+            None => LidarChannel::ALL.to_vec(),
+        }
+    }
+
+    /// The LiDARs this case reads that `frame` lacks (most real Lyft samples and every KITTI or
+    /// nuScenes sample have LIDAR_TOP only).
+    pub fn missing_lidars(self, frame: &Frame) -> Vec<LidarChannel> {
+        self.lidars()
+            .into_iter()
+            .filter(|c| frame.lidar(*c).is_none())
+            .collect()
+    }
+
+    /// What to tell the user when the case reads LiDARs the sample lacks: a fusion case runs on
+    /// the LiDARs that are there; a single-LiDAR case on a missing LiDAR has nothing to see.
+    /// `None` when every LiDAR the case reads is there.
+    pub fn missing_lidars_note(self, frame: &Frame) -> Option<String> {
+        let missing = self.missing_lidars(frame);
+        if missing.is_empty() {
+            return None;
+        }
+        let names = missing.iter().map(|c| c.as_str()).collect::<Vec<_>>().join(", ");
+        let present = frame
+            .lidars()
+            .map(|l| l.info.channel.as_str())
+            .collect::<Vec<_>>()
+            .join(", ");
+        Some(if self.channel().is_some() {
+            format!(
+                "{}: sample {} has no {names}: there is nothing for this case to detect on",
+                self.paper_name(),
+                frame.sample_token
+            )
+        } else {
+            format!(
+                "{}: sample {} lacks {names}; it runs on what is there ({present}){}",
+                self.paper_name(),
+                frame.sample_token,
+                if self.is_oc() {
+                    ", with no auxiliary LiDAR to calibrate"
+                } else {
+                    ""
+                }
+            )
+        })
+    }
+
     /// Whether one stage-1 network is trained for this case (all single-network stage-1 cases).
     pub fn is_trainable(self) -> bool {
         matches!(

@@ -24,7 +24,7 @@ use super::kitti::{kitti_ap, KittiConfig, KittiReport, SampleBoxes};
 use super::localization::{self, with_truth, BoxError, Fix, LocalizationSummary};
 use super::lyft::{lyft_map, thresholds, Footprints, LyftBox, LyftMap};
 use super::matching::{match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
-use crate::dataset::{Dataset, DatasetError};
+use crate::dataset::{Dataset, DatasetError, EvalRegion};
 use crate::geometry::{Box3d, Detection, Pose};
 
 /// Errors of reading predictions and evaluating them.
@@ -246,6 +246,9 @@ pub struct PredictionSummary {
     pub rejected: usize,
     /// The first (up to 10) rejected records.
     pub first_rejected: Vec<Rejected>,
+    /// Accepted predictions outside the samples' evaluation regions (KITTI: outside camera 2's
+    /// view or in a DontCare region): neither true nor false positives.
+    pub outside_region: usize,
 }
 
 /// One prediction's outcome in the per-box report.
@@ -318,6 +321,15 @@ struct SampleTruth {
     gts: Vec<Detection>,
     gt_tokens: Vec<String>,
     lyft: Vec<LyftBox>,
+    /// Where the format evaluates (KITTI: camera 2's view without DontCare regions); predictions
+    /// outside it are neither true nor false positives.
+    region: Option<EvalRegion>,
+}
+
+impl SampleTruth {
+    fn evaluates(&self, b: &Box3d) -> bool {
+        self.region.as_ref().is_none_or(|r| r.contains(b))
+    }
 }
 
 fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
@@ -350,6 +362,7 @@ fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
         gts: info.boxes.iter().map(|b| b.as_detection()).collect(),
         gt_tokens: info.boxes.iter().map(|b| b.annotation_token.clone()).collect(),
         lyft,
+        region: info.eval_region,
     })
 }
 
@@ -404,19 +417,30 @@ pub fn evaluate(
         .iter()
         .map(|s| (s.token.as_str(), s.base_to_global.inverse()))
         .collect();
+    let by_token: HashMap<&str, &SampleTruth> = truths.iter().map(|s| (s.token.as_str(), s)).collect();
+    let mut lyft_preds: Vec<LyftBox> = Vec::with_capacity(preds.accepted.len());
     for (index, b) in &preds.accepted {
-        if let Some(pose) = g2b.get(b.sample_token.as_str()) {
-            by_sample.entry(b.sample_token.as_str()).or_default().push((
-                *index,
-                Detection {
-                    box3d: to_base(b, pose),
-                    score: b.score.unwrap_or(0.0) as f32,
-                    category: b.name.clone(),
-                },
-            ));
+        let Some(pose) = g2b.get(b.sample_token.as_str()) else {
+            lyft_preds.push(b.clone());
+            continue;
+        };
+        let box3d = to_base(b, pose);
+        if !by_token
+            .get(b.sample_token.as_str())
+            .is_none_or(|s| s.evaluates(&box3d))
+        {
+            continue;
         }
+        lyft_preds.push(b.clone());
+        by_sample.entry(b.sample_token.as_str()).or_default().push((
+            *index,
+            Detection {
+                box3d,
+                score: b.score.unwrap_or(0.0) as f32,
+                category: b.name.clone(),
+            },
+        ));
     }
-    let lyft_preds: Vec<LyftBox> = preds.accepted.iter().map(|(_, b)| b.clone()).collect();
     Ok(finish(&truths, &by_sample, lyft_preds, preds, opts))
 }
 
@@ -433,7 +457,13 @@ pub fn evaluate_detections(
     let mut total = 0;
     for s in &truths {
         let dets = detections.get(&s.token).map(Vec::as_slice).unwrap_or(&[]);
-        for d in dets {
+        let kept: Vec<(usize, Detection)> = dets
+            .iter()
+            .cloned()
+            .enumerate()
+            .filter(|(_, d)| s.evaluates(&d.box3d))
+            .collect();
+        for (_, d) in &kept {
             lyft_preds.push(LyftBox::from_base(
                 &s.token,
                 &d.box3d,
@@ -442,7 +472,7 @@ pub fn evaluate_detections(
                 Some(f64::from(d.score)),
             ));
         }
-        by_sample.insert(s.token.as_str(), dets.iter().cloned().enumerate().collect());
+        by_sample.insert(s.token.as_str(), kept);
         total += dets.len();
     }
     let set = PredictionSet {
@@ -452,6 +482,7 @@ pub fn evaluate_detections(
     };
     let mut report = finish(&truths, &by_sample, lyft_preds, &set, opts);
     report.predictions.accepted = total;
+    report.predictions.outside_region = total.saturating_sub(by_sample.values().map(Vec::len).sum::<usize>());
     Ok(report)
 }
 
@@ -592,6 +623,10 @@ fn finish(
             accepted: preds.accepted.len(),
             rejected: preds.rejected.len(),
             first_rejected: preds.rejected.iter().take(10).cloned().collect(),
+            outside_region: preds
+                .accepted
+                .len()
+                .saturating_sub(by_sample.values().map(Vec::len).sum::<usize>()),
         },
         per_box,
     }

@@ -14,6 +14,7 @@
 
 use serde::Serialize;
 
+use crate::dataset::EvalRegion;
 use crate::geometry::iou::{iou_matrix, IouKind};
 use crate::geometry::nms::score_order;
 use crate::geometry::Detection;
@@ -171,17 +172,19 @@ pub fn match_sample(preds: &[Detection], gts: &[Detection], rule: &MatchRule) ->
 }
 
 /// What a viewer matches: only the predictions scoring at least `min_score` (the boxes drawn)
-/// against only the ground truth `keep` accepts (e.g. the detector's categories). Outcomes are
-/// indexed like `preds` and `gts`; the others are `Ignored`.
+/// and inside the frame's evaluation region (KITTI: camera 2's view), against only the ground
+/// truth `keep` accepts (e.g. the detector's categories). Outcomes are indexed like `preds` and
+/// `gts`; the others are `Ignored`.
 pub fn match_drawn(
     preds: &[Detection],
     gts: &[Detection],
     rule: &MatchRule,
     min_score: f32,
+    region: Option<&EvalRegion>,
     keep: impl Fn(&Detection) -> bool,
 ) -> SampleMatch {
     let kept: Vec<usize> = (0..preds.len())
-        .filter(|&i| preds[i].score >= min_score)
+        .filter(|&i| preds[i].score >= min_score && region.is_none_or(|r| r.contains(&preds[i].box3d)))
         .collect();
     let drawn: Vec<Detection> = kept.iter().map(|&i| preds[i].clone()).collect();
     let known: Vec<usize> = (0..gts.len()).filter(|&j| keep(&gts[j])).collect();
@@ -230,7 +233,9 @@ mod tests {
             det(10.0, 0.0, 0.1, "car"),  // below min score: not drawn
             det(10.0, 0.05, 0.8, "car"), // drawn, on gt 1
         ];
-        let m = match_drawn(&preds, &gts, &MatchRule::default(), 0.3, |g| g.category == "car");
+        let m = match_drawn(&preds, &gts, &MatchRule::default(), 0.3, None, |g| {
+            g.category == "car"
+        });
         assert!(matches!(m.preds[0], PredOutcome::FalsePositive { .. }));
         assert_eq!(m.preds[1], PredOutcome::Ignored);
         assert!(matches!(m.preds[2], PredOutcome::TruePositive { gt: 1, .. }));

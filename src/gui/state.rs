@@ -342,10 +342,11 @@ impl DetectionView {
         let gts: Vec<Detection> = frame
             .map(|f| f.boxes.iter().map(|b| b.as_detection()).collect())
             .unwrap_or_default();
-        let (outcomes, gt_outcomes) = match_layer(&raw.detections, &gts, &raw.categories, settings);
+        let region = frame.and_then(|f| f.eval_region.as_ref());
+        let (outcomes, gt_outcomes) = match_layer(&raw.detections, &gts, &raw.categories, settings, region);
         let refinement = raw.refined.map(|refined| {
             let dets: Vec<Detection> = refined.iter().map(|r| r.detection.clone()).collect();
-            let (outcomes, gt_outcomes) = match_layer(&dets, &gts, &raw.categories, settings);
+            let (outcomes, gt_outcomes) = match_layer(&dets, &gts, &raw.categories, settings, region);
             let best = |d: &Detection| {
                 gts.iter()
                     .filter(|g| g.category == d.category)
@@ -423,13 +424,14 @@ fn match_layer(
     gts: &[Detection],
     categories: &[String],
     settings: &DetectionSettings,
+    region: Option<&crate::dataset::EvalRegion>,
 ) -> (Vec<PredOutcome>, Vec<GtOutcome>) {
     let rule = MatchRule {
         iou_threshold: settings.match_iou,
         kind: IouKind::ThreeD,
         max_range: f64::INFINITY,
     };
-    let m = match_drawn(detections, gts, &rule, settings.min_score, |g| {
+    let m = match_drawn(detections, gts, &rule, settings.min_score, region, |g| {
         categories.contains(&g.category)
     });
     (m.preds, m.gts)
