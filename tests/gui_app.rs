@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use egui::accesskit::Role;
-use egui_kittest::kittest::Queryable;
+use egui_kittest::kittest::{NodeT, Queryable};
 use egui_kittest::Harness;
 use mlod::color::ColorMode;
 use mlod::dataset::Dataset;
@@ -1567,4 +1567,91 @@ fn soak_browse_1000_samples_and_10000_alpha_moves() {
         "resident memory grew by more than 50 MB"
     );
     assert!(end_gpu.buffer_bytes <= peak_gpu);
+}
+
+fn kitti_fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/kitti")
+}
+
+fn harness_on(dataset: PathBuf, session: Option<Session>) -> Harness<'static, MlodApp> {
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .wgpu()
+        .build_eframe(move |cc| {
+            MlodApp::new(
+                cc,
+                AppOptions {
+                    dataset,
+                    session,
+                    synchronous: true,
+                    measure_frames: None,
+                    measure_run: false,
+                    models: None,
+                },
+            )
+        });
+    h.run_steps(3);
+    h
+}
+
+#[test]
+fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar() {
+    // Two real KITTI frames: LIDAR_TOP only.
+    let mut h = harness_on(kitti_fixture(), None);
+    let frame = h
+        .state()
+        .frame()
+        .expect("the first KITTI frame is loaded")
+        .clone();
+    assert!(frame.is_single_lidar());
+    assert!(
+        h.query_by_label_contains("LIDAR_TOP only: this sample has no")
+            .is_some(),
+        "the banner"
+    );
+    // The default case on such a sample is LiDAR-Top.
+    assert_eq!(h.state().session().detection.case, Case::Top);
+    assert!(h.query_by_label_contains("lacks").is_none());
+    // α and calibrate are off (disabled, with the reason as their tooltip).
+    let alpha = h.get_all_by_role(Role::Slider).next().expect("the α slider");
+    assert!(alpha.accesskit_node().is_disabled(), "α is disabled");
+    assert!(h.get_by_label("calibrate (ICP)").accesskit_node().is_disabled());
+    assert!(h.get_by_label("play α 0 to 0.1").accesskit_node().is_disabled());
+    // Setting α through the disabled slider changes nothing.
+    h.get_all_by_role(Role::Slider)
+        .next()
+        .unwrap()
+        .set_value_accesskit(0.04);
+    h.run_steps(2);
+    assert_eq!(h.state().session().fuse.perturbation.alpha, 0.0);
+    // A fusion case names the LiDARs the sample lacks and runs on what is there.
+    h.state_mut().session_mut().detection.case = Case::Input;
+    h.run_steps(2);
+    let note =
+        "Input Fusion: sample 000000 lacks LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT; it runs on what is there";
+    assert!(h.query_by_label_contains(note).is_some(), "the fusion note");
+    assert_eq!(
+        Case::Input
+            .missing_lidars_note(&frame)
+            .as_deref()
+            .map(|n| n.starts_with(note)),
+        Some(true),
+        "the panel's note is the CLI's"
+    );
+    // A session that names a fusion case keeps it.
+    let mut s = Session::new(kitti_fixture());
+    s.detection.case = Case::Feature;
+    let h2 = harness_on(kitti_fixture(), Some(s));
+    assert_eq!(h2.state().session().detection.case, Case::Feature);
+    // Three LiDARs (sample_data): no banner, α and calibrate on, the default case stays.
+    let h3 = harness(None);
+    assert!(h3.query_by_label_contains("LIDAR_TOP only").is_none());
+    assert!(!h3.get_by_label("calibrate (ICP)").accesskit_node().is_disabled());
+    assert!(!h3
+        .get_all_by_role(Role::Slider)
+        .next()
+        .unwrap()
+        .accesskit_node()
+        .is_disabled());
+    assert_eq!(h3.state().session().detection.case, Case::Input);
 }

@@ -2,7 +2,8 @@
 //! `tests/fixtures/lyft-real/` (extrinsics and boxes against the official devkit's numbers in
 //! `tests/fixtures/devkit_expected/real_boxes.json`), and small synthetic datasets written to a
 //! temporary folder with the library's own writers for everything the real excerpt cannot show
-//! (points, NaNs, truncated files, missing tables, path traversal, a single-LiDAR sample). KITTI (tests/fixtures/kitti) and a nuScenes-style copy come last.
+//! (points, NaNs, truncated files, missing tables, path traversal, a single-LiDAR sample). KITTI
+//! (two real frames in tests/fixtures/kitti) and a nuScenes-style copy come last.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -100,6 +100,9 @@ pub struct MlodApp {
     focus_pending: bool,
     /// Scan for failure cases once the sample is fused (a session with the browser open).
     scan_on_load: bool,
+    /// A dataset opened without a session: its first sample picks the default case (LiDAR-Top
+    /// on a LIDAR_TOP-only sample).
+    case_from_data: bool,
 }
 
 impl MlodApp {
@@ -173,10 +176,12 @@ impl MlodApp {
             detect_on_load: false,
             focus_pending: false,
             scan_on_load: false,
+            case_from_data: false,
             session,
         };
         let path = app.session.dataset.clone();
         app.open_dataset(path);
+        app.case_from_data = auto_color;
         app.reopen_failures();
         app.process_jobs(0.0);
         app.reopen_sweep(0.0);
@@ -185,6 +190,7 @@ impl MlodApp {
 
     /// Starts opening a dataset; the current one stays until the new one has loaded.
     pub fn open_dataset(&mut self, path: PathBuf) {
+        self.case_from_data = true;
         self.loading_dataset = Some(path.clone());
         self.jobs.open_dataset(path);
     }
@@ -257,6 +263,13 @@ impl MlodApp {
                                 .clone()
                                 .filter(|t| samples.iter().any(|s| &s.sample_token == t));
                             let first = keep.or_else(|| samples.first().map(|s| s.sample_token.clone()));
+                            for note in ds.notes() {
+                                self.shell.toasts.push(Toast {
+                                    text: note,
+                                    error: false,
+                                    until: now + 10.0,
+                                });
+                            }
                             self.loaded.dataset = Some(ds);
                             self.loaded.samples = samples;
                             self.session.dataset = path.clone();
@@ -287,6 +300,17 @@ impl MlodApp {
                                 });
                             }
                             self.ego_heading = ego_heading(&frame);
+                            if std::mem::take(&mut self.case_from_data) && frame.is_single_lidar() {
+                                let case = &mut self.session.detection.case;
+                                if !case.missing_lidars(&frame).is_empty() {
+                                    *case = crate::detect::Case::Top;
+                                    self.shell.toasts.push(Toast {
+                                        text: "This sample has LIDAR_TOP only: the case is LiDAR-Top".into(),
+                                        error: false,
+                                        until: now + 5.0,
+                                    });
+                                }
+                            }
                             if self.loaded.detection.as_ref().is_some_and(|d| d.token != token) {
                                 self.loaded.detection = None;
                             }
@@ -465,6 +489,8 @@ impl MlodApp {
         } else {
             let path = self.session.dataset.clone();
             self.open_dataset(path);
+            // The session says which case.
+            self.case_from_data = false;
         }
     }
 
@@ -713,6 +739,7 @@ impl eframe::App for MlodApp {
         let mut p = self.panels();
         panels::keys(&mut p, &ctx);
         panels::menu_bar(&mut p, ui);
+        panels::banner(&mut p, ui);
         panels::status_bar(&mut p, ui);
         egui::Panel::left("samples")
             .resizable(true)

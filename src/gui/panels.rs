@@ -27,6 +27,44 @@ use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
 /// The paper's perturbation levels (Table II).
 const ALPHA_MARKS: [f64; 4] = [0.0, 0.02, 0.04, 0.1];
 
+/// Why the perturbation controls are off on a LIDAR_TOP-only sample (their tooltip).
+pub(super) const NO_AUXILIARY: &str = "This sample has LIDAR_TOP only: α, play α, the manual offsets and \
+    calibrate (ICP) act on the auxiliary LiDARs (LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT), and there are none";
+
+/// The banner under the menu: what the sample on screen lacks, and what that turns off.
+pub fn banner(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    let Some(frame) = p.loaded.frame.clone() else {
+        return;
+    };
+    let missing = frame.missing_auxiliaries();
+    if missing.is_empty() {
+        return;
+    }
+    let names = missing
+        .iter()
+        .map(|c| c.as_str())
+        .collect::<Vec<_>>()
+        .join(" and ");
+    let text = if frame.is_single_lidar() {
+        format!(
+            "LIDAR_TOP only: this sample has no {names} (as most real Lyft scenes, and every KITTI and \
+             nuScenes sample). α, play α, the offsets and calibrate (ICP) are off; fusion cases run on \
+             LIDAR_TOP alone."
+        )
+    } else {
+        format!("This sample has no {names}: α perturbs the auxiliary LiDAR that is there; fusion cases run without it.")
+    };
+    egui::Panel::top("lidar_banner")
+        .frame(
+            egui::Frame::new()
+                .fill(Color32::from_rgb(92, 72, 20))
+                .inner_margin(egui::Margin::symmetric(8, 4)),
+        )
+        .show(ui, |ui| {
+            ui.label(RichText::new(text).color(Color32::from_rgb(255, 230, 160)));
+        });
+}
+
 /// What the panels see and may edit, and the actions they ask for.
 pub struct Panels<'a> {
     pub session: &'a mut Session,
@@ -303,23 +341,46 @@ pub fn controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
 
 fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.heading("Extrinsic perturbation");
+    // A LIDAR_TOP-only sample has nothing to perturb: the controls stay visible but off.
+    let has_aux = p.loaded.frame.as_ref().is_none_or(|f| !f.is_single_lidar());
+    // Disabled widgets still take accessibility actions (a screen reader's "set value"): on a
+    // LIDAR_TOP-only sample whatever they changed is undone.
+    let before = (!has_aux).then(|| p.session.fuse.clone());
+    let acted = p.actions.len();
+    ui.add_enabled_ui(has_aux, |ui| perturbation_controls(p, ui, has_aux));
+    if let Some(before) = before {
+        p.session.fuse = before;
+        p.actions.truncate(acted);
+    }
+    if !has_aux {
+        ui.label(RichText::new("off: this sample has LIDAR_TOP only").weak())
+            .on_hover_text(NO_AUXILIARY);
+    }
+    ui.add_space(4.0);
+    calibration::calibration(p, ui);
+}
+
+fn perturbation_controls(p: &mut Panels<'_>, ui: &mut egui::Ui, has_aux: bool) {
     let fp = &mut p.session.fuse;
     let mut changed = false;
-    changed |= ui
-        .add(
-            egui::Slider::new(&mut fp.perturbation.alpha, 0.0..=0.1)
-                .text("α")
-                .step_by(0.001)
-                .fixed_decimals(3),
-        )
-        .changed();
+    let why = |r: egui::Response| {
+        if has_aux {
+            r
+        } else {
+            r.on_disabled_hover_text(NO_AUXILIARY)
+        }
+    };
+    changed |= why(ui.add(
+        egui::Slider::new(&mut fp.perturbation.alpha, 0.0..=0.1)
+            .text("α")
+            .step_by(0.001)
+            .fixed_decimals(3),
+    ))
+    .changed();
     ui.horizontal(|ui| {
         ui.label(RichText::new("paper levels").weak());
         for a in ALPHA_MARKS {
-            if ui
-                .selectable_label(fp.perturbation.alpha == a, format!("{a}"))
-                .clicked()
-            {
+            if why(ui.selectable_label(fp.perturbation.alpha == a, format!("{a}"))).clicked() {
                 fp.perturbation.alpha = a;
                 changed = true;
             }
@@ -335,13 +396,11 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         } else {
             format!("play α 0 to {to}")
         };
-        if ui
-            .button(play)
-            .on_hover_text(
-                "Animate α from 0 in 40 steps (same seed: the same drift, scaled), re-fusing, \
+        if why(ui.button(play).on_hover_text(
+            "Animate α from 0 in 40 steps (same seed: the same drift, scaled), re-fusing, \
                  recolouring and, with \"run again on every change\", re-detecting",
-            )
-            .clicked()
+        ))
+        .clicked()
         {
             toggle = Some(to);
         }
@@ -443,8 +502,6 @@ fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     if changed {
         p.act(Action::Refuse);
     }
-    ui.add_space(4.0);
-    calibration::calibration(p, ui);
 }
 
 /// Three labelled drag values in a row, each within ±`limit`; true if any changed.

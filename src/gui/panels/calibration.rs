@@ -13,6 +13,7 @@ use crate::gui::state::{lidar_label, Action};
 pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.label(RichText::new("Online calibration (ICP)").strong());
     let busy = p.loaded.calibrating.is_some();
+    let has_aux = p.loaded.frame.as_ref().is_none_or(|f| !f.is_single_lidar());
     ui.horizontal(|ui| {
         let label = if busy {
             "calibrating… (Esc)"
@@ -20,10 +21,18 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             "calibrate (ICP)"
         };
         if ui
-            .add_enabled(p.loaded.frame.is_some() && !busy, egui::Button::new(label))
+            .add_enabled(
+                p.loaded.frame.is_some() && !busy && has_aux,
+                egui::Button::new(label),
+            )
             .on_hover_text(
                 "Re-estimate the drifted auxiliary extrinsics by point-to-plane ICP against LiDAR-Top",
             )
+            .on_disabled_hover_text(if has_aux {
+                "A calibration is running or no sample is loaded"
+            } else {
+                super::NO_AUXILIARY
+            })
             .clicked()
         {
             p.act(Action::Calibrate);

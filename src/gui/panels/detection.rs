@@ -36,6 +36,14 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             .on_hover_text("Run the detector on this sample with the current perturbation")
             .clicked();
     });
+    if let Some(note) = p
+        .loaded
+        .frame
+        .as_ref()
+        .and_then(|f| p.session.detection.case.missing_lidars_note(f))
+    {
+        ui.label(RichText::new(note).color(Color32::from_rgb(230, 180, 90)));
+    }
     compare_row(p, ui);
     if ui
         .button("failure cases…")
