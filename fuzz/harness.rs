@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::OnceLock;
 
-use mlod::dataset::{parse_bin, Dataset, LoadOptions, POINT_BYTES};
+use mlod::dataset::{parse_bin, parse_points, Dataset, LoadOptions, PointLayout, POINT_BYTES};
 use mlod::detect::{Case, Manifest, Stage1Model};
 use mlod::refine::{Decoding, Refiner};
 
@@ -137,6 +137,48 @@ pub fn point_cloud(data: &[u8]) {
         assert!(c.is_consistent());
         assert_eq!((c.len() + c.dropped) * POINT_BYTES + c.trimmed_bytes, data.len());
         assert!(c.x.iter().chain(&c.y).chain(&c.z).all(|v| v.is_finite()));
+    }
+    // The same bytes as KITTI records (4 float32; reflectance scaled, rings from scan order).
+    for lenient in [false, true] {
+        let Ok(c) = parse_points(data, path, LoadOptions { lenient }, PointLayout::XyzReflectance) else {
+            continue;
+        };
+        assert!(c.is_consistent());
+        assert_eq!((c.len() + c.dropped) * 16 + c.trimmed_bytes, data.len());
+        assert!(c.intensity.iter().chain(&c.ring).all(|v| v.is_finite()));
+    }
+}
+
+/// A KITTI frame: label, calib and point file (split on NUL). The parsers never panic; a frame
+/// that loads fuses, and the evaluation region judges its boxes without a panic.
+pub fn kitti(data: &[u8]) {
+    let p = parts(data, 3);
+    let (label, calib, bin) = (
+        p.first().copied().unwrap_or_default(),
+        p.get(1).copied().unwrap_or_default(),
+        p.get(2).copied().unwrap_or_default(),
+    );
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    let _ = mlod::dataset::kitti::parse_labels(&text(label), Path::new("label_2/000000.txt"));
+    let _ = mlod::dataset::kitti::KittiCalib::parse(&text(calib), Path::new("calib/000000.txt"));
+    let s = Scratch::new("kitti");
+    s.write("training/label_2/000000.txt", label);
+    s.write("training/calib/000000.txt", calib);
+    s.write("training/velodyne/000000.bin", bin);
+    let Ok(ds) = Dataset::open(s.path()) else { return };
+    let _ = ds.notes();
+    let Ok(frame) = ds.frame_with("000000", LoadOptions { lenient: true }) else {
+        return;
+    };
+    for b in &frame.boxes {
+        assert!(
+            b.box3d.center.iter().all(|v| v.is_finite()),
+            "a box from finite labels is finite"
+        );
+        let _ = frame.evaluates(&b.box3d);
+    }
+    if let Ok(cloud) = mlod::pipeline::fuse(&frame, &mlod::pipeline::FuseParams::default()) {
+        assert_eq!(cloud.x.len(), frame.num_points());
     }
 }
 

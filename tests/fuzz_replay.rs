@@ -45,5 +45,6 @@ replay_test!(
     manifest,
     weights,
     predictions,
-    sweep_folder
+    sweep_folder,
+    kitti
 );
