@@ -551,6 +551,15 @@ fn model_provenance_names_the_command_a_user_types() {
                 "{}{path}: the command is `{c}`; provenance names the command as a user types it (`mlod …`)",
                 m.display()
             );
+            // Paths as a user types them: relative, never one machine's folders.
+            for arg in c.split_whitespace() {
+                let value = arg.split_once('=').map_or(arg, |(_, v)| v);
+                assert!(
+                    !value.starts_with('/') && !value.starts_with('~') && !value.contains(":\\"),
+                    "{}{path}: `{c}` holds the absolute path {value}",
+                    m.display()
+                );
+            }
         }
     }
     assert!(seen >= 10, "only {seen} commands found in the manifests");
