@@ -321,6 +321,15 @@ pub struct DetectionCounts {
     pub missed: usize,
 }
 
+impl DetectionCounts {
+    /// Drawn boxes neither true nor false positives: outside the frame's evaluation region
+    /// (KITTI: camera 2's view, DontCare regions).
+    pub fn unscored(&self) -> usize {
+        self.shown
+            .saturating_sub(self.true_positives + self.false_positives)
+    }
+}
+
 /// A detector's output before it is matched: what a run returns.
 pub struct RawDetection {
     pub case: Case,

@@ -42,7 +42,12 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         }
     });
     let Some(cal) = p.session.oc.calibration.clone() else {
-        ui.label(RichText::new("not calibrated: the cloud uses the drifted extrinsics").weak());
+        let text = if has_aux {
+            "not calibrated: the cloud uses the drifted extrinsics"
+        } else {
+            "no auxiliary LiDAR to calibrate"
+        };
+        ui.label(RichText::new(text).weak());
         return;
     };
     let frame = p.loaded.frame.clone();

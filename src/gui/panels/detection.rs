@@ -114,6 +114,14 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     ))
                     .color(color32(GT_COLOR)),
                 );
+                if c.unscored() > 0 {
+                    ui.label(RichText::new(format!("{} not scored", c.unscored())).weak())
+                        .on_hover_text(
+                            "outside the evaluated region: this dataset labels only what its camera sees \
+                             (KITTI: camera 2's view without its DontCare regions), so boxes elsewhere \
+                             are neither true nor false positives",
+                        );
+                }
             });
             compare_lines(p, ui, c);
             if refined {
