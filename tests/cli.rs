@@ -225,6 +225,60 @@ fn inspect_real_fixture_prints_devkit_boxes_and_names_missing_bins() {
 }
 
 #[test]
+fn a_kitti_folder_opens_as_it_lies_and_fusion_names_the_missing_lidars() {
+    let kitti = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/kitti");
+    let v = json(&["inspect", "--dataset", kitti, "--sample", "000001", "--json"]);
+    assert_eq!(v["format"], "kitti");
+    let car = v["boxes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["category"] == "car")
+        .expect("KITTI's Car is our car");
+    assert_eq!(car["source_category"], "Car");
+    // An independent numpy conversion of label_2/000001.txt's car (see tests/lyft_loader.rs).
+    for (k, want) in [58.7721, 16.5508, -0.8412].into_iter().enumerate() {
+        assert!((car["center"][k].as_f64().unwrap() - want).abs() < 1e-3, "{car}");
+    }
+    let out = mlod(&[
+        "detect",
+        "--dataset",
+        kitti,
+        "--sample",
+        "000001",
+        "--case",
+        "input",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("note: Input Fusion: sample 000001 lacks LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT; it runs on what is there (LIDAR_TOP)"),
+        "{err}"
+    );
+    // LiDAR-Top reads only LIDAR_TOP: no such note.
+    let out = mlod(&[
+        "detect",
+        "--dataset",
+        kitti,
+        "--sample",
+        "000001",
+        "--case",
+        "top",
+    ]);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("lacks"));
+    // eval counts the samples that lack LiDARs, and what it ignores outside camera 2's view.
+    let out = mlod(&["eval", "--dataset", kitti, "--case", "input"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("note: 2 of 2 samples lack LiDARs the case reads"),
+        "{err}"
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("outside the evaluated region"), "{text}");
+}
+
+#[test]
 fn fuse_reports_what_the_gui_shows() {
     let data = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
     let v = json(&[

@@ -1624,7 +1624,9 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
         .set_value_accesskit(0.04);
     h.run_steps(2);
     assert_eq!(h.state().session().fuse.perturbation.alpha, 0.0);
-    assert!(h.query_by_label_contains("no auxiliary LiDAR to calibrate").is_some());
+    assert!(h
+        .query_by_label_contains("no auxiliary LiDAR to calibrate")
+        .is_some());
     // LiDAR-Top runs on the real frame; drawn boxes outside camera 2's view are not scored.
     h.get_by_label("Run (D)").click();
     h.run_steps(3);
@@ -1633,9 +1635,14 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
     let outside = drawn.iter().filter(|d| !frame.evaluates(&d.box3d)).count();
     assert_eq!(counts.shown, drawn.len());
     assert_eq!(counts.unscored(), outside);
-    assert_eq!(counts.true_positives + counts.false_positives, drawn.len() - outside);
+    assert_eq!(
+        counts.true_positives + counts.false_positives,
+        drawn.len() - outside
+    );
     if outside > 0 {
-        assert!(h.query_by_label_contains(&format!("{outside} not scored")).is_some());
+        assert!(h
+            .query_by_label_contains(&format!("{outside} not scored"))
+            .is_some());
     }
     // A fusion case names the LiDARs the sample lacks and runs on what is there.
     h.state_mut().session_mut().detection.case = Case::Input;

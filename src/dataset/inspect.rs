@@ -21,6 +21,8 @@ use crate::geometry::{quat_to_wxyz, Pose};
 #[derive(Debug, Serialize)]
 pub struct InspectReport {
     pub sample_token: String,
+    /// The format the dataset was read from (`lyft`, `nuscenes`, `kitti`).
+    pub format: super::DatasetFormat,
     /// LIDAR_TOP first, then LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT (those present).
     pub lidars: Vec<InspectLidar>,
     /// In sample_annotation.json order.
@@ -78,7 +80,10 @@ impl From<&Pose> for InspectExtrinsic {
 /// `{"category", "center", "size_lwh", "yaw"}` in the base frame.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct InspectBox {
+    /// Our category name (`car`, …).
     pub category: String,
+    /// The name as the dataset writes it (`vehicle.car`, `Car`, `car`).
+    pub source_category: String,
     pub center: [f64; 3],
     pub size_lwh: [f64; 3],
     /// Heading of the box x axis about +z, atan2(R₁₀, R₀₀) ∈ [−π, π] (rad).
@@ -134,6 +139,7 @@ pub fn inspect_with(
         .iter()
         .map(|b| InspectBox {
             category: b.category.clone(),
+            source_category: b.source_category.clone(),
             center: b.box3d.center,
             size_lwh: b.box3d.size_lwh,
             yaw: b.box3d.yaw,
@@ -141,6 +147,7 @@ pub fn inspect_with(
         .collect();
     Ok(InspectReport {
         sample_token: info.sample_token,
+        format: dataset.format(),
         lidars,
         boxes,
         errors,
