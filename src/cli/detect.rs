@@ -99,6 +99,7 @@ pub fn detect(a: DetectArgs) -> Result<()> {
     let frame = dataset.frame(&token)?;
     let params = a.run.fuse_params()?;
     let detector = a.run.load(a.case)?;
+    super::stats::print_training_notes(&dataset, &a.run.models_dir());
     let t0 = std::time::Instant::now();
     let dets = detector.detect(&frame, &params)?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;

@@ -117,7 +117,7 @@ pub struct CalibrateArgs {
 }
 
 /// The command line as a user types it: `mlod` and the arguments (not the binary's path).
-fn command_line() -> String {
+pub fn command_line() -> String {
     std::iter::once("mlod".to_string())
         .chain(std::env::args().skip(1))
         .collect::<Vec<_>>()
