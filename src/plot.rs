@@ -436,6 +436,7 @@ fn lines_png(
             .y_desc(y_desc)
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))
+            .x_label_formatter(&|v| format!("{v:.0}"))
             .draw()
             .map_err(draw_err)?;
         for (k, (label, pts)) in series.iter().enumerate() {
@@ -517,6 +518,7 @@ fn points_per_box_png(sets: &[LabelledStats<'_>], path: &Path) -> Result<(), Plo
                 .configure_mesh()
                 .x_desc("box centre range (m)")
                 .y_desc("points in box + 1")
+                .x_label_formatter(&|v| format!("{v:.0}"))
                 .label_style(("sans-serif", 13))
                 .axis_desc_style(("sans-serif", 14))
                 .y_label_formatter(&|v| format!("{v:.0}"))

@@ -57,3 +57,11 @@ pub fn sample_token(dataset: &mlod::dataset::Dataset, sample: Option<&str>) -> R
             .to_string()),
     }
 }
+
+/// The command line as a user types it: `mlod` and the arguments (not the binary's path).
+pub fn command_line() -> String {
+    std::iter::once("mlod".to_string())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ")
+}

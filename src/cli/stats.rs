@@ -62,7 +62,7 @@ pub fn run(a: StatsArgs) -> Result<()> {
     if let Some(dir) = &a.update_manifest {
         let mut m = mlod::detect::weights::Manifest::load(dir)?;
         m.training_stats = Some(TrainingStats {
-            command: super::train::command_line(),
+            command: super::args::command_line(),
             summary: stats.summary(),
         });
         m.save(dir)?;
@@ -233,7 +233,7 @@ fn print_text(stats: &DatasetStats) {
         )
         .collect();
     println!(
-        "{:<14} {:>6} {:>18}  {}",
+        "{:<18} {:>6} {:>18}  {}",
         "category",
         "boxes",
         "size",
@@ -254,7 +254,7 @@ fn print_text(stats: &DatasetStats) {
             })
             .collect();
         println!(
-            "{:<14} {:>6} {:>18}  {bins}",
+            "{:<18} {:>6} {:>18}  {bins}",
             c.category,
             c.boxes,
             format!("{l:.2}×{w:.2}×{h:.2}")

@@ -12,6 +12,7 @@ use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
 
+use super::args::command_line;
 use super::detect::DetectorRun;
 
 #[derive(clap::Subcommand)]
@@ -114,14 +115,6 @@ pub struct CalibrateArgs {
     /// 3D IoU for a detection to count as a true positive.
     #[arg(long, default_value_t = 0.7)]
     iou: f64,
-}
-
-/// The command line as a user types it: `mlod` and the arguments (not the binary's path).
-pub fn command_line() -> String {
-    std::iter::once("mlod".to_string())
-        .chain(std::env::args().skip(1))
-        .collect::<Vec<_>>()
-        .join(" ")
 }
 
 pub fn train(cmd: TrainCommand) -> Result<()> {

@@ -199,6 +199,9 @@ pub struct RangeBin {
     pub boxes: usize,
     /// Median points inside a box (all LiDARs); null for an empty bin or when not counted.
     pub median_points: Option<f64>,
+    /// The same with LIDAR_TOP's points only (what a single-LiDAR dataset such as KITTI compares
+    /// with).
+    pub median_points_top: Option<f64>,
 }
 
 /// Boxes of one category.
@@ -221,6 +224,8 @@ pub struct BoxRecord {
     pub size_lwh: [f64; 3],
     /// Points inside (all LiDARs); null when not counted.
     pub points: Option<usize>,
+    /// Of those, LIDAR_TOP's.
+    pub points_top: Option<usize>,
 }
 
 /// Everything [`dataset_stats`] measures.
@@ -418,11 +423,16 @@ fn object_stats(boxes: &[BoxRecord]) -> Vec<CategoryStats> {
                     let in_bin: Vec<&&BoxRecord> = bs.iter().filter(|b| object_bin(b.range_m) == k).collect();
                     let mut pts: Vec<f64> =
                         in_bin.iter().filter_map(|b| b.points.map(|p| p as f64)).collect();
+                    let mut top: Vec<f64> = in_bin
+                        .iter()
+                        .filter_map(|b| b.points_top.map(|p| p as f64))
+                        .collect();
                     RangeBin {
                         from_m,
                         to_m: OBJECT_BIN_EDGES_M.get(k + 1).copied(),
                         boxes: in_bin.len(),
                         median_points: median(&mut pts),
+                        median_points_top: median(&mut top),
                     }
                 })
                 .collect();
@@ -525,7 +535,7 @@ impl LidarAcc {
         let p = &scan.points;
         self.points.push(p.len());
         for &r in &p.ring {
-            if r >= 0.0 && r < 65536.0 {
+            if (0.0..65536.0).contains(&r) {
                 let k = r.round() as usize;
                 if self.rings.len() <= k {
                     self.rings.resize(k + 1, false);
@@ -654,7 +664,7 @@ fn ground_height(scan: &LidarScan) -> Option<f64> {
 fn returns(x: &[f32], y: &[f32], ring: &[f32]) -> Option<(u64, u64)> {
     let mut per_ring: Vec<Vec<f64>> = Vec::new();
     for ((&px, &py), &r) in x.iter().zip(y).zip(ring) {
-        if !(r >= 0.0 && r < 4096.0) {
+        if !(0.0..4096.0).contains(&r) {
             continue;
         }
         let k = r.round() as usize;
@@ -725,12 +735,13 @@ impl Acc {
                 .add_scan(scan, opts);
         }
         let cloud = opts.points_in_boxes.then(|| base_frame_points(frame));
-        let counts: Vec<Option<usize>> = frame
+        let n_top = frame.primary.points.len();
+        let counts: Vec<Option<(usize, usize)>> = frame
             .boxes
             .par_iter()
-            .map(|b| cloud.as_ref().map(|c| points_in_box(c, &b.box3d)))
+            .map(|b| cloud.as_ref().map(|c| points_in_box(c, n_top, &b.box3d)))
             .collect();
-        for (k, (b, points)) in frame.boxes.iter().zip(counts).enumerate() {
+        for (k, (b, counts)) in frame.boxes.iter().zip(counts).enumerate() {
             self.boxes.push((
                 index,
                 k,
@@ -739,7 +750,8 @@ impl Acc {
                     category: b.category.clone(),
                     range_m: b.box3d.bev_range(),
                     size_lwh: b.box3d.size_lwh,
-                    points,
+                    points: counts.map(|c| c.0),
+                    points_top: counts.map(|c| c.1),
                 },
             ));
         }
@@ -782,11 +794,22 @@ pub fn base_frame_points(frame: &Frame) -> [Vec<f32>; 3] {
     out
 }
 
-/// Points of `cloud` (base frame) inside `b`: a cheap square reject, then the oriented test.
-pub fn points_in_box(cloud: &[Vec<f32>; 3], b: &Box3d) -> usize {
+/// Points of `cloud` (base frame) inside `b`, all of them and among the first `n_top` (LIDAR_TOP's
+/// in [`base_frame_points`]' order): a cheap square reject, then the oriented test.
+pub fn points_in_box(cloud: &[Vec<f32>; 3], n_top: usize, b: &Box3d) -> (usize, usize) {
+    let [xs, ys, zs] = cloud;
+    let n_top = n_top.min(xs.len());
+    let part = |r: std::ops::Range<usize>| match (xs.get(r.clone()), ys.get(r.clone()), zs.get(r)) {
+        (Some(x), Some(y), Some(z)) => count_inside(x, y, z, b),
+        _ => 0,
+    };
+    let top = part(0..n_top);
+    (top + part(n_top..xs.len()), top)
+}
+
+fn count_inside(xs: &[f32], ys: &[f32], zs: &[f32], b: &Box3d) -> usize {
     let r = 0.5 * b.size_lwh[0].hypot(b.size_lwh[1]);
     let (cx, cy) = (b.center[0], b.center[1]);
-    let [xs, ys, zs] = cloud;
     xs.iter()
         .zip(ys)
         .zip(zs)

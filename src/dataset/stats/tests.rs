@@ -81,10 +81,10 @@ fn sample_data_stats_match_a_brute_force_count() {
     let mut top_rings = HashSet::new();
     let mut top_intensity: Vec<f32> = Vec::new();
     // Cars: (range bin, points inside) computed with a 4×4 matrix and the box's own axes.
-    let mut cars: Vec<(usize, usize)> = Vec::new();
+    let mut cars: Vec<(usize, usize, usize)> = Vec::new();
     for tok in &tokens {
         let frame = ds.frame(tok).unwrap();
-        let mut world: Vec<[f64; 3]> = Vec::new();
+        let mut world: Vec<([f64; 3], bool)> = Vec::new();
         for scan in frame.lidars() {
             per_channel
                 .entry(scan.info.channel)
@@ -99,7 +99,7 @@ fn sample_data_stats_match_a_brute_force_count() {
                     1.0,
                 );
                 let q = m * p;
-                world.push([q.x, q.y, q.z]);
+                world.push(([q.x, q.y, q.z], scan.info.channel == LidarChannel::Top));
             }
             if scan.info.channel == LidarChannel::Top {
                 top_rings.extend(scan.points.ring.iter().filter(|r| **r >= 0.0).map(|r| *r as i64));
@@ -109,9 +109,9 @@ fn sample_data_stats_match_a_brute_force_count() {
         for b in frame.boxes.iter().filter(|b| b.category == "car") {
             let bx = &b.box3d;
             let (s, c) = bx.yaw.sin_cos();
-            let inside = world
+            let inside: Vec<bool> = world
                 .iter()
-                .filter(|p| {
+                .filter(|(p, _)| {
                     let (dx, dy, dz) = (p[0] - bx.center[0], p[1] - bx.center[1], p[2] - bx.center[2]);
                     let along = c * dx + s * dy;
                     let across = -s * dx + c * dy;
@@ -119,10 +119,11 @@ fn sample_data_stats_match_a_brute_force_count() {
                         && across.abs() <= bx.size_lwh[1] / 2.0
                         && dz.abs() <= bx.size_lwh[2] / 2.0
                 })
-                .count();
+                .map(|(_, top)| *top)
+                .collect();
             let r = bx.center[0].hypot(bx.center[1]);
             let bin = ((r / 10.0).floor() as usize).min(7);
-            cars.push((bin, inside));
+            cars.push((bin, inside.len(), inside.iter().filter(|t| **t).count()));
         }
     }
     for (channel, counts) in &per_channel {
@@ -153,6 +154,8 @@ fn sample_data_stats_match_a_brute_force_count() {
         let in_bin: Vec<usize> = cars.iter().filter(|c| c.0 == k).map(|c| c.1).collect();
         assert_eq!(bin.boxes, in_bin.len(), "bin {k}");
         assert_eq!(bin.median_points, brute_median(in_bin), "bin {k}");
+        let top: Vec<usize> = cars.iter().filter(|c| c.0 == k).map(|c| c.2).collect();
+        assert_eq!(bin.median_points_top, brute_median(top), "bin {k}, LIDAR_TOP");
     }
     // Every box is listed, and the summary takes LIDAR_TOP's numbers.
     assert_eq!(
