@@ -8,7 +8,8 @@ use clap::{Parser, Subcommand};
 mod cli;
 
 use cli::{
-    analyze, calibrate, data, detect, eval, export, failures, sweep, table1, train, uncertainty, window,
+    analyze, calibrate, data, detect, eval, export, failures, stats, sweep, table1, train, uncertainty,
+    window,
 };
 
 #[derive(Parser)]
@@ -82,6 +83,10 @@ enum Command {
     /// and shardable (`mlod sweep merge` unites shards).
     #[command(after_help = cli::SWEEP_EXAMPLES)]
     Sweep(sweep::SweepArgs),
+    /// A dataset's sensor statistics: points per sweep, rings, intensity, ground height, ray drop,
+    /// range, and points per object against range; text, JSON and PNG plots.
+    #[command(after_help = cli::STATS_EXAMPLES)]
+    Stats(stats::StatsArgs),
     /// Analyses of the refiner: its active points (§V-C, Fig. 5).
     #[command(subcommand, after_help = cli::ANALYZE_EXAMPLES)]
     Analyze(analyze::AnalyzeCommand),
@@ -131,5 +136,6 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Table1(a)) => table1::table1_cmd(a),
         Some(Command::Sweep(a)) => sweep::run(a),
         Some(Command::Analyze(c)) => analyze::analyze(c),
+        Some(Command::Stats(a)) => stats::run(a),
     }
 }

@@ -343,6 +343,230 @@ pub fn curves_with_error_bars_png(
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }
 
+/// A dataset's statistics with the label its series carry.
+pub type LabelledStats<'a> = (&'a str, &'a crate::dataset::DatasetStats);
+
+/// `mlod stats --out`'s plots of one or more datasets (one colour each): `points_per_box.png`
+/// (points inside each box against its range, a panel per category, the median per range bin
+/// joined), `intensity.png` and `range.png` (each LiDAR's share of points per bin). Axes are
+/// fixed (0–80 m, 0–256, 0–160 m) so that plots of different datasets compare. Returns the files.
+pub fn stats_pngs(sets: &[LabelledStats<'_>], dir: &Path) -> Result<Vec<std::path::PathBuf>, PlotError> {
+    let mut written = Vec::new();
+    let p = dir.join("points_per_box.png");
+    points_per_box_png(sets, &p)?;
+    written.push(p);
+    let share = |h: &crate::dataset::stats::Histogram, overflow_at: Option<f64>| {
+        let total = h.total().max(1) as f64;
+        let mut pts: Vec<(f64, f64)> = h
+            .edges
+            .windows(2)
+            .zip(&h.counts)
+            .map(|(e, &c)| (0.5 * (e[0] + e[1]), c as f64 / total))
+            .collect();
+        if let Some(x) = overflow_at {
+            pts.push((x, h.above as f64 / total));
+        }
+        pts
+    };
+    let series = |pick: &dyn Fn(&crate::dataset::stats::LidarStats) -> Vec<(f64, f64)>| {
+        sets.iter()
+            .flat_map(|(label, s)| {
+                s.lidars
+                    .iter()
+                    .map(move |l| (format!("{label} {}", l.channel), pick(l)))
+            })
+            .collect::<Vec<_>>()
+    };
+    let p = dir.join("intensity.png");
+    lines_png(
+        &series(&|l| share(&l.intensity.histogram, None)),
+        "Intensity",
+        "intensity (8-wide bins)",
+        "share of the LiDAR's points",
+        (0.0, 256.0),
+        &p,
+    )?;
+    written.push(p);
+    let p = dir.join("range.png");
+    lines_png(
+        &series(&|l| share(&l.range.histogram, Some(155.0))),
+        "Range from the sensor (150+ m at 155)",
+        "range (m, 10 m bins)",
+        "share of the LiDAR's points",
+        (0.0, 160.0),
+        &p,
+    )?;
+    written.push(p);
+    Ok(written)
+}
+
+/// Series (label, points) as lines with markers, one TAB10 colour each, the legend top right.
+fn lines_png(
+    series: &[(String, Vec<(f64, f64)>)],
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    x_range: (f64, f64),
+    path: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    let top = series
+        .iter()
+        .flat_map(|(_, p)| p.iter().map(|q| q.1))
+        .fold(0.0f64, f64::max);
+    if series.is_empty() || top <= 0.0 {
+        return Err(PlotError::Empty(format!("{title}: no points")));
+    }
+    let (w, h) = (900u32, 520u32);
+    let palette = TAB10.map(|[r, g, b]| RGBColor(r, g, b));
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(64)
+            .build_cartesian_2d(x_range.0..x_range.1, 0.0..top * 1.1)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style(("sans-serif", 15))
+            .axis_desc_style(("sans-serif", 17))
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .draw()
+            .map_err(draw_err)?;
+        for (k, (label, pts)) in series.iter().enumerate() {
+            let color = palette[k % palette.len()];
+            chart
+                .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+                .map_err(draw_err)?
+                .label(label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+            chart
+                .draw_series(pts.iter().map(|&q| Circle::new(q, 3, color.filled())))
+                .map_err(draw_err)?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .label_font(("sans-serif", 15))
+            .draw()
+            .map_err(draw_err)?;
+        root.present().map_err(draw_err)?;
+    }
+    write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
+}
+
+/// Points inside each box (+1, log scale) against its range, a panel per category (the six with
+/// most boxes), one colour per dataset; the median per 10 m bin (70+ at 75 m) joined by a line.
+fn points_per_box_png(sets: &[LabelledStats<'_>], path: &Path) -> Result<(), PlotError> {
+    register_fonts();
+    let mut cats: Vec<(String, usize)> = Vec::new();
+    for (_, s) in sets {
+        for c in &s.objects {
+            match cats.iter_mut().find(|(n, _)| *n == c.category) {
+                Some(e) => e.1 += c.boxes,
+                None => cats.push((c.category.clone(), c.boxes)),
+            }
+        }
+    }
+    cats.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    cats.truncate(6);
+    if cats.is_empty() {
+        return Err(PlotError::Empty("no boxes".into()));
+    }
+    let y_max = sets
+        .iter()
+        .flat_map(|(_, s)| s.boxes.iter().filter_map(|b| b.points))
+        .max()
+        .unwrap_or(1) as f64;
+    let y_top = 10f64.powf((y_max + 1.0).log10().ceil().max(1.0));
+    let cols = cats.len().min(3);
+    let rows = cats.len().div_ceil(cols);
+    let (w, h) = (460 * cols as u32, 400 * rows as u32 + 40);
+    let palette = TAB10.map(|[r, g, b]| RGBColor(r, g, b));
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err)?;
+        let legend: Vec<String> = sets
+            .iter()
+            .map(|(label, s)| format!("{label}: {} samples", s.samples))
+            .collect();
+        let root = root
+            .titled(
+                &format!("Points inside each box against range ({})", legend.join(", ")),
+                ("sans-serif", 20),
+            )
+            .map_err(draw_err)?;
+        let panels = root.split_evenly((rows, cols));
+        for (panel, (cat, _)) in panels.iter().zip(&cats) {
+            let mut chart = ChartBuilder::on(panel)
+                .caption(cat.as_str(), ("sans-serif", 18))
+                .margin(10)
+                .x_label_area_size(38)
+                .y_label_area_size(56)
+                .build_cartesian_2d(0.0..80.0, (1.0..y_top).log_scale())
+                .map_err(draw_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("box centre range (m)")
+                .y_desc("points in box + 1")
+                .x_label_formatter(&|v| format!("{v:.0}"))
+                .label_style(("sans-serif", 13))
+                .axis_desc_style(("sans-serif", 14))
+                .y_label_formatter(&|v| format!("{v:.0}"))
+                .draw()
+                .map_err(draw_err)?;
+            for (k, (label, s)) in sets.iter().enumerate() {
+                let color = palette[k % palette.len()];
+                let pts: Vec<(f64, f64)> = s
+                    .boxes
+                    .iter()
+                    .filter(|b| b.category == *cat)
+                    .filter_map(|b| b.points.map(|p| (b.range_m.min(79.5), p as f64 + 1.0)))
+                    .collect();
+                chart
+                    .draw_series(pts.iter().map(|&q| Circle::new(q, 2, color.mix(0.35).filled())))
+                    .map_err(draw_err)?;
+                let medians: Vec<(f64, f64)> = s
+                    .category(cat)
+                    .map(|c| {
+                        c.range_bins
+                            .iter()
+                            .filter_map(|b| b.median_points.map(|m| (b.from_m + 5.0, m + 1.0)))
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                chart
+                    .draw_series(LineSeries::new(medians.clone(), color.stroke_width(3)))
+                    .map_err(draw_err)?
+                    .label(format!("{label} median"))
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(3)));
+                chart
+                    .draw_series(medians.iter().map(|&q| Circle::new(q, 5, color.filled())))
+                    .map_err(draw_err)?;
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperRight)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.3))
+                .label_font(("sans-serif", 13))
+                .draw()
+                .map_err(draw_err)?;
+        }
+        root.present().map_err(draw_err)?;
+    }
+    write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -1089,6 +1089,36 @@ fn absurd_arguments_of_the_workflow_commands_fail_cleanly() {
             "--out",
             gif,
         ],
+        vec!["stats", "--dataset", sample, "--samples", "0"],
+        vec!["stats", "--dataset", sample, "--samples", "-3"],
+        vec!["stats", "--dataset", sample, "--samples", "many"],
+        vec!["stats", "--dataset", "/nonexistent/dataset"],
+        vec![
+            "stats",
+            "--dataset",
+            sample,
+            "--compare",
+            "/nonexistent/dataset",
+            "--out",
+            gif,
+        ],
+        vec![
+            "stats",
+            "--dataset",
+            sample,
+            "--samples",
+            "1",
+            "--out",
+            "/dev/null/cannot-be-a-folder",
+        ],
+        vec!["stats", "--dataset", sample, "--summary", "--out", gif],
+        vec![
+            "stats",
+            "--dataset",
+            sample,
+            "--update-manifest",
+            "/nonexistent/models",
+        ],
     ];
     for args in &cases {
         let out = mlod(args);
@@ -1304,4 +1334,126 @@ fn table1_records_the_notrace_ablation_under_its_own_refiner() {
     );
     let ap = &after["refiner_notrace"]["test_ap"]["mlod-i-notrace/moderate_ap3d_0.7"];
     assert!(ap.as_f64().is_some_and(|v| (0.0..=100.0).contains(&v)), "{ap}");
+}
+
+#[test]
+fn stats_prints_text_json_and_writes_plots() {
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let text = mlod(&["stats", "--dataset", sample, "--samples", "2"]);
+    assert!(text.status.success(), "{}", String::from_utf8_lossy(&text.stderr));
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("LIDAR_TOP") && text.contains("car"), "{text}");
+    let v = json(&["stats", "--dataset", sample, "--samples", "2", "--json"]);
+    assert_eq!(v["samples"], 2);
+    assert_eq!(v["failed_samples"], 0);
+    assert_eq!(v["format"], "lyft");
+    assert_eq!(v["lidars"][0]["channel"], "LIDAR_TOP");
+    assert!(v["lidars"][0]["points_per_sweep"]["median"].as_f64().unwrap() > 1000.0);
+    assert!(v["objects"][0]["range_bins"][7]["to_m"].is_null());
+    assert!(v.get("boxes").is_none(), "boxes only with --per-box");
+    let s = json(&[
+        "stats",
+        "--dataset",
+        sample,
+        "--samples",
+        "2",
+        "--summary",
+        "--json",
+    ]);
+    assert_eq!(s["samples"], 2);
+    assert_eq!(s["lidars"].as_array().unwrap().len(), 3);
+
+    let dir = Scratch::new("stats");
+    let out = dir.0.to_str().unwrap();
+    let kitti = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/kitti");
+    let run = mlod(&[
+        "stats",
+        "--dataset",
+        sample,
+        "--compare",
+        kitti,
+        "--per-box",
+        "--out",
+        out,
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    for f in [
+        "stats.json",
+        "compare.json",
+        "points_per_box.png",
+        "intensity.png",
+        "range.png",
+    ] {
+        assert!(dir.0.join(f).is_file(), "{f} missing");
+    }
+    let k: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.0.join("compare.json")).unwrap()).unwrap();
+    assert_eq!(k["format"], "kitti");
+    assert_eq!(k["lidars"][0]["rings"], 64);
+    assert_eq!(k["lidars"].as_array().unwrap().len(), 1);
+    assert!(!k["boxes"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn stats_updates_a_manifest_and_detect_and_eval_name_what_differs() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let kitti = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/kitti");
+    // The summary goes into a copy of the shipped manifest, under training_stats.
+    let dir = Scratch::new("stats-manifest");
+    let shipped = std::path::Path::new(root).join("assets/models");
+    std::fs::copy(shipped.join("manifest.json"), dir.0.join("manifest.json")).unwrap();
+    let m = dir.0.to_str().unwrap();
+    let run = mlod(&[
+        "stats",
+        "--dataset",
+        sample,
+        "--samples",
+        "3",
+        "--summary",
+        "--update-manifest",
+        m,
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.0.join("manifest.json")).unwrap()).unwrap();
+    let t = &manifest["training_stats"];
+    assert!(t["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("mlod stats --dataset "));
+    assert_eq!(t["summary"]["samples"], 3);
+    assert!(
+        manifest["models"]["top"].is_object(),
+        "the rest of the manifest is kept"
+    );
+
+    // The shipped manifest holds the training data's summary: KITTI differs, sample_data does not.
+    assert!(
+        mlod::detect::weights::read_training_stats(&shipped)
+            .unwrap()
+            .is_some(),
+        "assets/models/manifest.json has no training_stats"
+    );
+    let det = mlod(&["detect", "--dataset", kitti, "--case", "top", "--json"]);
+    let err = String::from_utf8_lossy(&det.stderr);
+    assert!(det.status.success(), "{err}");
+    assert!(err.contains("note: 64 rings: the model saw 39"), "{err}");
+    assert!(
+        err.contains("note: no LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT"),
+        "{err}"
+    );
+    assert!(err.contains("m shorter"), "{err}");
+    serde_json::from_slice::<serde_json::Value>(&det.stdout).expect("stdout stays JSON");
+    let ev = mlod(&["eval", "--dataset", kitti, "--case", "top", "--json"]);
+    let err = String::from_utf8_lossy(&ev.stderr);
+    assert!(ev.status.success(), "{err}");
+    assert!(err.contains("note: 64 rings"), "{err}");
+    let same = mlod(&["detect", "--dataset", sample, "--case", "top", "--json"]);
+    assert!(same.status.success());
+    let err = String::from_utf8_lossy(&same.stderr);
+    assert!(
+        !err.contains("note:"),
+        "sample_data is like the training data: {err}"
+    );
 }

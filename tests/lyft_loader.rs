@@ -1112,7 +1112,10 @@ fn kitti_root() -> PathBuf {
 
 /// The fixture's labels moved to the LiDAR frame by an independent conversion (numpy:
 /// inv(R0_rect · Tr_velo_to_cam) · (x, y − h/2, z, 1), yaw −ry − π/2), DontCare lines left out.
-const KITTI_EXPECTED: [(&str, &str, [f64; 3], [f64; 3], f64); 4] = [
+/// (frame, our category, centre, size l w h, yaw).
+type ExpectedBox = (&'static str, &'static str, [f64; 3], [f64; 3], f64);
+
+const KITTI_EXPECTED: [ExpectedBox; 4] = [
     (
         "000000",
         "pedestrian",

@@ -99,6 +99,7 @@ pub fn detect(a: DetectArgs) -> Result<()> {
     let frame = dataset.frame(&token)?;
     let params = a.run.fuse_params()?;
     let detector = a.run.load(a.case)?;
+    super::stats::print_training_notes(&dataset, &a.run.models_dir());
     if let Some(note) = a.case.missing_lidars_note(&frame) {
         eprintln!("note: {note}");
     }

@@ -158,6 +158,7 @@ pub fn eval_cmd(args: EvalArgs) -> Result<()> {
     let tokens = evaluated_tokens(&dataset, &args.dataset, &opts)?;
     let Some(pred_path) = &args.pred else {
         let case = args.case.context("give --pred FILE or --case CASE")?;
+        super::stats::print_training_notes(&dataset, &args.run.models_dir());
         if !args.seeds.is_empty() {
             return trials(&args, &dataset, &tokens, case, &opts);
         }

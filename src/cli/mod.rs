@@ -10,6 +10,7 @@ pub mod eval;
 pub mod export;
 pub mod failures;
 pub mod refine;
+pub mod stats;
 pub mod sweep;
 pub mod table1;
 pub mod train;
@@ -119,6 +120,15 @@ Examples:
   mlod eval --dataset data/test --pred predictions.json  a Lyft-format prediction file
   mlod eval --dataset data/test --case input --alpha 0.04 --seed 3
   mlod eval --dataset sample_data --case top --samples 1 --per-box --json";
+
+pub const STATS_EXAMPLES: &str = "\
+Examples:
+  mlod stats --dataset data/test --samples 40                  text summary
+  mlod stats --dataset data/test --samples 40 --json           the same as JSON
+  mlod stats --dataset data/test --compare /data/kitti --out out/realism   JSON and PNG plots of both
+  mlod stats --dataset data/train --samples 200 --summary --update-manifest assets/models
+                                                               the training data's summary, which
+                                                               detect and eval compare datasets with";
 
 pub const TABLE1_EXAMPLES: &str = "\
 Examples:

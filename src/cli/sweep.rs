@@ -84,7 +84,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
     let (Some(dataset_dir), Some(out)) = (args.dataset.as_ref(), args.out.as_ref()) else {
         bail!("give --dataset DIR and --out DIR (or `mlod sweep merge --out DIR SHARD...`)");
     };
-    let dataset = super::open_dataset(&dataset_dir)?;
+    let dataset = super::open_dataset(dataset_dir)?;
     let all: Vec<String> = dataset.sample_tokens().iter().map(|s| s.to_string()).collect();
     if args.samples == Some(0) {
         bail!("--samples must be at least 1");

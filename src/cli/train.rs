@@ -12,6 +12,7 @@ use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
 
+use super::args::command_line;
 use super::detect::DetectorRun;
 
 #[derive(clap::Subcommand)]
@@ -114,84 +115,6 @@ pub struct CalibrateArgs {
     /// 3D IoU for a detection to count as a true positive.
     #[arg(long, default_value_t = 0.7)]
     iou: f64,
-}
-
-/// The command line as a user types it: `mlod` and the arguments (not the binary's path), with
-/// absolute paths made relative to the current folder (provenance must not hold one machine's
-/// folders).
-fn command_line() -> String {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let cwd = std::env::current_dir().unwrap_or_default();
-    portable_command(&args, &cwd)
-}
-
-/// `mlod` and `args`, each absolute path (also in `--flag=/path`) relative to `cwd`.
-pub fn portable_command(args: &[String], cwd: &std::path::Path) -> String {
-    let rel = |a: &str| -> String {
-        let p = std::path::Path::new(a);
-        if !p.is_absolute() || !cwd.is_absolute() {
-            return a.to_string();
-        }
-        relative_to(p, cwd).to_string_lossy().into_owned()
-    };
-    std::iter::once("mlod".to_string())
-        .chain(args.iter().map(|a| match a.split_once('=') {
-            Some((flag, value)) if flag.starts_with("--") => format!("{flag}={}", rel(value)),
-            _ => rel(a),
-        }))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
-/// `path` relative to `base` (both absolute), with `..` where it leaves `base`.
-fn relative_to(path: &std::path::Path, base: &std::path::Path) -> std::path::PathBuf {
-    let p: Vec<_> = path.components().collect();
-    let b: Vec<_> = base.components().collect();
-    let common = p.iter().zip(&b).take_while(|(x, y)| x == y).count();
-    let mut out = std::path::PathBuf::new();
-    for _ in common..b.len() {
-        out.push("..");
-    }
-    for c in p.iter().skip(common) {
-        out.push(c.as_os_str());
-    }
-    if out.as_os_str().is_empty() {
-        out.push(".");
-    }
-    out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn recorded_commands_hold_relative_paths() {
-        let args: Vec<String> = [
-            "train",
-            "tune-vote",
-            "--dataset",
-            "/work/data/train",
-            "--models=/work/main/assets/models",
-            "--steps",
-            "10",
-            "rel/x",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        assert_eq!(
-            portable_command(&args, std::path::Path::new("/work/main")),
-            "mlod train tune-vote --dataset ../data/train --models=assets/models --steps 10 rel/x"
-        );
-        assert_eq!(
-            portable_command(
-                &["--out".into(), "/work/main".into()],
-                std::path::Path::new("/work/main")
-            ),
-            "mlod --out ."
-        );
-    }
 }
 
 pub fn train(cmd: TrainCommand) -> Result<()> {

@@ -66,6 +66,14 @@ pub enum DatasetError {
     #[error("the dataset at {path} has no samples")]
     NoSamples { path: PathBuf },
 
+    /// Statistics were asked for and none of the selected samples could be read.
+    #[error("no sample of the dataset at {path} could be read ({failed} failed; the first: {first})")]
+    NoUsableSamples {
+        path: PathBuf,
+        failed: usize,
+        first: String,
+    },
+
     /// A sample without a key-frame LIDAR_TOP sweep: it has no base frame.
     #[error(
         "sample {sample_token} has no key-frame LIDAR_TOP sample_data; \

@@ -263,7 +263,8 @@ pub fn parse_labels(text: &str, path: &Path) -> Result<Vec<KittiLabel>, DatasetE
             rotation_y: ry,
             score,
         };
-        if !label.is_dont_care() && !(h > 0.0 && w > 0.0 && l > 0.0) {
+        let positive = h > 0.0 && w > 0.0 && l > 0.0;
+        if !label.is_dont_care() && !positive {
             return Err(bad(format!(
                 "{}: size h w l = {h} {w} {l} is not positive",
                 label.kind

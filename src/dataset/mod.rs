@@ -23,6 +23,7 @@ pub mod index;
 pub mod inspect;
 pub mod kitti;
 pub mod pointcloud;
+pub mod stats;
 pub mod tables;
 
 pub use error::DatasetError;
@@ -36,5 +37,8 @@ pub use kitti::{EvalRegion, RegionVerdict};
 pub use pointcloud::{
     encode_bin, parse_bin, parse_points, read_bin, write_bin, LoadOptions, PointCloud, PointLayout,
     POINT_BYTES,
+};
+pub use stats::{
+    dataset_stats, out_of_depth_notes, summarize, DatasetStats, StatsOptions, StatsSummary, TrainingStats,
 };
 pub use tables::{to_devkit_json, write_table, Record, Table, Tables};

@@ -216,6 +216,10 @@ pub struct Manifest {
     /// (`mlod train tune-refiner`); absent: the refined score alone, no NMS after refinement.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refine: Option<RefineTuning>,
+    /// The training data's sensor statistics (`mlod stats --update-manifest`): what `mlod detect`
+    /// and `mlod eval` compare a dataset with, to name what lies outside the training data.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub training_stats: Option<crate::dataset::TrainingStats>,
 }
 
 /// The refiner's decoding and how it was chosen.
@@ -285,6 +289,11 @@ impl Manifest {
             what: format!("no model for case {case}"),
         })
     }
+}
+
+/// The training data's summary stored in `dir/manifest.json` (`None` when the manifest has none).
+pub fn read_training_stats(dir: &Path) -> Result<Option<crate::dataset::StatsSummary>, DetectError> {
+    Ok(Manifest::load(dir)?.training_stats.map(|t| t.summary))
 }
 
 /// The folder whose manifest lists a weights file: its parent (`.` for a bare file name).

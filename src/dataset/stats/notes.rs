@@ -1,0 +1,235 @@
+//! [`out_of_depth_notes`]: what differs between a model's training data and the data it is
+//! given, in words, from two [`StatsSummary`]s.
+
+use super::StatsSummary;
+
+/// Tolerances of [`out_of_depth_notes`].
+const SIZE_TOLERANCE_M: f64 = 0.3;
+const GROUND_TOLERANCE_M: f64 = 0.3;
+const POINTS_RATIO: f64 = 2.0;
+
+/// What differs between the data a model was trained on and the data it is given, beyond sensible
+/// tolerances, in words: rings, constant or shifted intensity, car size (≥ 0.3 m in length, width
+/// or height), the sensor's height above the ground (≥ 0.3 m), points per sweep (≥ 2×), LiDARs
+/// the model saw that the data lacks. Empty when nothing does.
+pub fn out_of_depth_notes(trained_on: &StatsSummary, data: &StatsSummary) -> Vec<String> {
+    let mut notes = Vec::new();
+    let t = trained_on;
+    match (t.rings, data.rings) {
+        (Some(a), Some(b)) if a != b => notes.push(format!("{b} rings: the model saw {a}")),
+        (Some(a), None) => notes.push(format!("the ring index is unknown: the model saw {a} rings")),
+        _ => {}
+    }
+    let trained_range = format!(
+        "{:.0}–{:.0} (5th–95th percentile)",
+        t.intensity_p05, t.intensity_p95
+    );
+    match (t.intensity_constant, data.intensity_constant) {
+        (None, Some(v)) => notes.push(format!(
+            "intensity is constant {}: the model was trained on {trained_range}",
+            num(v)
+        )),
+        (Some(a), Some(b)) if (a - b).abs() > 1e-6 => notes.push(format!(
+            "intensity is constant {}: the model was trained on a constant {}",
+            num(b),
+            num(a)
+        )),
+        (Some(a), None) => notes.push(format!(
+            "intensity varies ({:.0}–{:.0}, 5th–95th percentile): the model was trained on a constant {}",
+            data.intensity_p05,
+            data.intensity_p95,
+            num(a)
+        )),
+        (None, None) => {
+            let outside = data.intensity_median < t.intensity_p05 || data.intensity_median > t.intensity_p95;
+            let spread = |s: &StatsSummary| (s.intensity_p95 - s.intensity_p05).max(1.0);
+            let ratio = spread(data) / spread(t);
+            if outside || !(1.0 / POINTS_RATIO..=POINTS_RATIO).contains(&ratio) {
+                notes.push(format!(
+                    "intensity median {:.0} ({:.0}–{:.0}, 5th–95th percentile): the model was trained on median {:.0} ({trained_range})",
+                    data.intensity_median, data.intensity_p05, data.intensity_p95, t.intensity_median
+                ));
+            }
+        }
+        _ => {}
+    }
+    if let (Some(a), Some(b)) = (t.car_size_mean_lwh, data.car_size_mean_lwh) {
+        let words = [
+            ("shorter", "longer", "length"),
+            ("narrower", "wider", "width"),
+            ("lower", "taller", "height"),
+        ];
+        for ((ta, da), (less, more, what)) in a.iter().zip(b.iter()).zip(words) {
+            let d = da - ta;
+            if d.abs() >= SIZE_TOLERANCE_M {
+                notes.push(format!(
+                    "cars are {:.1} m {} (mean {what} {da:.2} m): the model saw {ta:.2} m",
+                    d.abs(),
+                    if d < 0.0 { less } else { more }
+                ));
+            }
+        }
+    }
+    if let (Some(a), Some(b)) = (t.ground_height_m, data.ground_height_m) {
+        if (a - b).abs() >= GROUND_TOLERANCE_M {
+            notes.push(format!(
+                "LIDAR_TOP is {b:.2} m above the ground: the model's was {a:.2} m"
+            ));
+        }
+    }
+    let (a, b) = (t.points_per_sweep_median, data.points_per_sweep_median);
+    if a > 0.0 && b > 0.0 {
+        let ratio = b / a;
+        if ratio >= POINTS_RATIO || ratio <= 1.0 / POINTS_RATIO {
+            let (k, word) = if ratio >= 1.0 {
+                (ratio, "more")
+            } else {
+                (1.0 / ratio, "fewer")
+            };
+            notes.push(format!(
+                "{b:.0} points per LIDAR_TOP sweep: the model saw {a:.0} ({k:.1}× {word})"
+            ));
+        }
+    }
+    let missing: Vec<&str> = t
+        .lidars
+        .iter()
+        .filter(|c| !data.lidars.contains(c))
+        .map(String::as_str)
+        .collect();
+    if !missing.is_empty() {
+        notes.push(format!(
+            "no {}: the model saw {} (fusion cases run on what there is)",
+            missing.join(", "),
+            if missing.len() == 1 { "it" } else { "them" }
+        ));
+    }
+    notes
+}
+
+/// A number without a needless fraction (100, not 100.0; 0.25 stays).
+fn num(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e12 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn summary() -> StatsSummary {
+        StatsSummary {
+            samples: 200,
+            rings: Some(40),
+            intensity_median: 12.0,
+            intensity_p05: 2.0,
+            intensity_p95: 60.0,
+            intensity_constant: None,
+            ground_height_m: Some(1.85),
+            points_per_sweep_median: 45_000.0,
+            car_size_mean_lwh: Some([4.8, 1.95, 1.6]),
+            lidars: vec![
+                "LIDAR_TOP".into(),
+                "LIDAR_FRONT_LEFT".into(),
+                "LIDAR_FRONT_RIGHT".into(),
+            ],
+        }
+    }
+
+    #[test]
+    fn the_same_data_gives_no_notes_and_small_differences_none_either() {
+        let t = summary();
+        assert!(out_of_depth_notes(&t, &t).is_empty());
+        let near = StatsSummary {
+            samples: 5,
+            intensity_median: 15.0,
+            ground_height_m: Some(1.7),
+            points_per_sweep_median: 60_000.0,
+            car_size_mean_lwh: Some([4.6, 1.8, 1.5]),
+            ..t.clone()
+        };
+        assert_eq!(out_of_depth_notes(&t, &near), Vec::<String>::new());
+    }
+
+    #[test]
+    fn each_difference_is_named() {
+        let t = summary();
+        let kitti = StatsSummary {
+            samples: 6,
+            rings: Some(64),
+            intensity_median: 74.0,
+            intensity_p05: 0.0,
+            intensity_p95: 150.0,
+            intensity_constant: None,
+            ground_height_m: Some(1.45),
+            points_per_sweep_median: 120_000.0,
+            car_size_mean_lwh: Some([3.9, 1.6, 1.5]),
+            lidars: vec!["LIDAR_TOP".into()],
+        };
+        let notes = out_of_depth_notes(&t, &kitti);
+        assert_eq!(notes.len(), 7, "{notes:#?}");
+        assert_eq!(notes[0], "64 rings: the model saw 40");
+        assert!(notes[1].starts_with("intensity median 74"), "{}", notes[1]);
+        assert!(notes[2].starts_with("cars are 0.9 m shorter"), "{}", notes[2]);
+        assert!(
+            notes[3].starts_with("cars are 0.3 m narrower")
+                || notes[3].starts_with("cars are 0.4 m narrower"),
+            "{}",
+            notes[3]
+        );
+        assert!(
+            notes[4].contains("1.45 m above the ground") && notes[4].contains("1.85"),
+            "{}",
+            notes[4]
+        );
+        assert!(
+            notes[5].starts_with("120000 points per LIDAR_TOP sweep") && notes[5].contains("2.7× more"),
+            "{}",
+            notes[5]
+        );
+        assert_eq!(
+            notes[6],
+            "no LIDAR_FRONT_LEFT, LIDAR_FRONT_RIGHT: the model saw them (fusion cases run on what there is)"
+        );
+        // The height differs by 0.1 m only: not named.
+        assert!(!notes.iter().any(|n| n.contains("lower") || n.contains("taller")));
+    }
+
+    #[test]
+    fn constant_intensity_and_unknown_rings_are_named() {
+        let t = summary();
+        let flat = StatsSummary {
+            rings: None,
+            intensity_median: 100.0,
+            intensity_p05: 100.0,
+            intensity_p95: 100.0,
+            intensity_constant: Some(100.0),
+            ..t.clone()
+        };
+        let notes = out_of_depth_notes(&t, &flat);
+        assert_eq!(
+            notes,
+            [
+                "the ring index is unknown: the model saw 40 rings",
+                "intensity is constant 100: the model was trained on 2–60 (5th–95th percentile)",
+            ]
+        );
+        // The other way round: a model trained on a constant intensity.
+        let notes = out_of_depth_notes(&flat, &t);
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("trained on a constant 100"), "{}", notes[0]);
+        // Fewer points by 2× or more, and a higher sensor.
+        let sparse = StatsSummary {
+            points_per_sweep_median: 15_000.0,
+            ground_height_m: Some(2.2),
+            ..t.clone()
+        };
+        let notes = out_of_depth_notes(&t, &sparse);
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes[0].contains("2.20 m above"), "{}", notes[0]);
+        assert!(notes[1].contains("3.0× fewer"), "{}", notes[1]);
+    }
+}
