@@ -310,8 +310,9 @@ fn real_sample_reports_its_missing_bin_files() {
     }
     let json = serde_json::to_value(&report).unwrap();
     let keys: Vec<_> = json.as_object().unwrap().keys().cloned().collect();
-    assert_eq!(keys.len(), 3);
-    for k in ["sample_token", "lidars", "boxes"] {
+    assert_eq!(keys.len(), 4);
+    assert_eq!(json["format"], "lyft");
+    for k in ["sample_token", "format", "lidars", "boxes"] {
         assert!(json.get(k).is_some(), "{k}");
     }
     let l0 = &json["lidars"][0];
@@ -333,10 +334,11 @@ fn real_sample_reports_its_missing_bin_files() {
         4
     );
     let b0 = &json["boxes"][0];
-    for k in ["category", "center", "size_lwh", "yaw"] {
+    for k in ["category", "source_category", "center", "size_lwh", "yaw"] {
         assert!(b0.get(k).is_some(), "{k}");
     }
-    assert_eq!(b0.as_object().unwrap().len(), 4);
+    assert_eq!(b0.as_object().unwrap().len(), 5);
+    assert_eq!(b0["category"], b0["source_category"], "Lyft's names are ours");
     if let Some(exp) = devkit_expected() {
         for (b, e) in json["boxes"]
             .as_array()
