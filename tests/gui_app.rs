@@ -1609,6 +1609,13 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
             .is_some(),
         "the banner"
     );
+    // The models never saw such data: the banner names what differs, as `mlod detect` does.
+    assert!(
+        h.query_by_label_contains("The models were trained on other data")
+            .is_some()
+            && h.query_by_label_contains("64 rings: the model saw").is_some(),
+        "the out-of-depth banner"
+    );
     // The default case on such a sample is LiDAR-Top.
     assert_eq!(h.state().session().detection.case, Case::Top);
     assert!(h.query_by_label_contains("lacks").is_none());
@@ -1666,6 +1673,11 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
     // Three LiDARs (sample_data): no banner, α and calibrate on, the default case stays.
     let h3 = harness(None);
     assert!(h3.query_by_label_contains("LIDAR_TOP only").is_none());
+    assert!(
+        h3.query_by_label_contains("The models were trained on other data")
+            .is_none(),
+        "sample_data comes from the simulator the models were trained on"
+    );
     assert!(!h3.get_by_label("calibrate (ICP)").accesskit_node().is_disabled());
     assert!(!h3
         .get_all_by_role(Role::Slider)

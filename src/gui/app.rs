@@ -270,6 +270,9 @@ impl MlodApp {
                                     until: now + 10.0,
                                 });
                             }
+                            self.loaded.depth_notes.clear();
+                            self.jobs
+                                .depth_notes(path.clone(), ds.clone(), self.models_dir.clone());
                             self.loaded.dataset = Some(ds);
                             self.loaded.samples = samples;
                             self.session.dataset = path.clone();
@@ -280,6 +283,11 @@ impl MlodApp {
                             }
                         }
                         Err(e) => self.toast(now, format!("cannot open dataset: {e}"), true),
+                    }
+                }
+                JobResult::DepthNotes { path, notes } => {
+                    if self.session.dataset == path {
+                        self.loaded.depth_notes = notes;
                     }
                 }
                 JobResult::Frame {

@@ -74,12 +74,17 @@ pub struct DetectOutput {
     pub refined: Option<Vec<Refined>>,
 }
 
+/// Samples summarised for the out-of-depth notes (as `mlod detect` does: cheap).
+const DEPTH_NOTE_SAMPLES: usize = 5;
+
 /// A finished job.
 pub enum JobResult {
     Dataset {
         path: PathBuf,
         result: Result<(Arc<Dataset>, Vec<SampleSummary>), String>,
     },
+    /// A dataset's statistics summary (a few samples) against the models' training data.
+    DepthNotes { path: PathBuf, notes: Vec<String> },
     Frame {
         token: String,
         result: Result<Arc<Frame>, String>,
@@ -223,6 +228,21 @@ impl Jobs {
                 })
                 .map_err(|e| e.to_string());
             JobResult::Dataset { path, result }
+        });
+    }
+
+    /// What differs between `dataset` and the data the models in `models` were trained on
+    /// (nothing when the manifest has no training statistics or the summary fails).
+    pub fn depth_notes(&mut self, path: PathBuf, dataset: Arc<Dataset>, models: PathBuf) {
+        self.spawn(move || {
+            let notes = match (
+                crate::detect::weights::read_training_stats(&models),
+                crate::dataset::summarize(&dataset, DEPTH_NOTE_SAMPLES),
+            ) {
+                (Ok(Some(trained)), Ok(data)) => crate::dataset::out_of_depth_notes(&trained, &data),
+                _ => Vec::new(),
+            };
+            JobResult::DepthNotes { path, notes }
         });
     }
 

@@ -33,6 +33,26 @@ pub(super) const NO_AUXILIARY: &str = "This sample has LIDAR_TOP only: α, play 
 
 /// The banner under the menu: what the sample on screen lacks, and what that turns off.
 pub fn banner(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    if !p.loaded.depth_notes.is_empty() {
+        let text = format!(
+            "The models were trained on other data (`mlod stats` compares): {}.",
+            p.loaded.depth_notes.join(" · ")
+        );
+        egui::Panel::top("depth_banner")
+            .frame(
+                egui::Frame::new()
+                    .fill(Color32::from_rgb(70, 48, 78))
+                    .inner_margin(egui::Margin::symmetric(8, 4)),
+            )
+            .show(ui, |ui| {
+                ui.label(RichText::new(text).color(Color32::from_rgb(235, 210, 250)))
+                    .on_hover_text(
+                        "The loaded models' training statistics (manifest.json's training_stats) \
+                         against a few samples of this dataset: detections here are outside what \
+                         the models have seen",
+                    );
+            });
+    }
     let Some(frame) = p.loaded.frame.clone() else {
         return;
     };

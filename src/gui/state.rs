@@ -204,6 +204,9 @@ impl Play {
 #[derive(Default)]
 pub struct Loaded {
     pub dataset: Option<Arc<Dataset>>,
+    /// What differs between the dataset and the models' training data
+    /// (`dataset::out_of_depth_notes`, over a few samples), shown under the menu.
+    pub depth_notes: Vec<String>,
     pub samples: Vec<SampleSummary>,
     pub frame: Option<Arc<Frame>>,
     pub fused: Option<FusedCloud>,
