@@ -1369,7 +1369,7 @@ fn nuscenes_copy_maps_category_names_and_lists_the_unmapped() {
     assert!(ds
         .notes()
         .iter()
-        .any(|n| n.contains("movable_object.barrier (1 boxes)")));
+        .any(|n| n.contains("movable_object.barrier (1 box)")));
     // Scored as ours: the truths named `car` are a perfect car detector (it scored 0 before).
     let dets = std::collections::HashMap::from([(
         "nu0".to_owned(),
@@ -1382,4 +1382,7 @@ fn nuscenes_copy_maps_category_names_and_lists_the_unmapped() {
     let report = mlod::eval::evaluate_detections(&ds, &dets, &Default::default()).unwrap();
     let ap = mlod::eval::kitti::ap_cell(&report.kitti, "car", "iou_0.7", "easy").unwrap();
     assert!((ap - 100.0).abs() < 1e-9, "{ap}");
+    // The unmapped barrier is never scored: no class of its own, not a missed box.
+    assert!(report.kitti.get("movable_object.barrier").is_none());
+    assert!(report.kitti.get("pedestrian").is_some());
 }

@@ -263,7 +263,12 @@ impl Dataset {
                 if unmapped.len() == 1 { "y is" } else { "ies are" },
                 unmapped
                     .iter()
-                    .map(|u| format!("{} ({} boxes)", u.name, u.boxes))
+                    .map(|u| format!(
+                        "{} ({} box{})",
+                        u.name,
+                        u.boxes,
+                        if u.boxes == 1 { "" } else { "es" }
+                    ))
                     .collect::<Vec<_>>()
                     .join(", ")
             ));

@@ -7,7 +7,8 @@
 //! quaternion, no score) is counted, its first offenders are reported with their index and
 //! reason, and it is skipped. Nothing is silently accepted.
 //!
-//! Ground truth is every annotation of the evaluated samples. The Lyft metric runs on the
+//! Ground truth is every annotation of the evaluated samples whose category is one of ours
+//! (`dataset::categories`; unmapped ones such as KITTI's `Misc` are left out). The Lyft metric runs on the
 //! global-frame records as given; KITTI AP_3D and the per-box outcomes run in the base frame
 //! (LIDAR_TOP), where the paper measures distances.
 
@@ -333,7 +334,10 @@ impl SampleTruth {
 }
 
 fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
-    let info = dataset.frame_info(token)?;
+    let mut info = dataset.frame_info(token)?;
+    // Categories with no counterpart among ours (nuScenes barriers, KITTI Misc) are never scored.
+    info.boxes
+        .retain(|b| crate::dataset::categories::canonical(&b.category).is_some());
     let base_to_global = info.primary.ego_to_global * info.primary.sensor_to_ego;
     let category: HashMap<&str, &str> = info
         .boxes
