@@ -98,6 +98,10 @@ pub struct Stage1Args {
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
+    /// Train with candle's own convolutions and autograd (the reference path, ~5x slower)
+    /// instead of the fast gemm convolutions; for comparison.
+    #[arg(long)]
+    slow_autograd: bool,
 }
 
 #[derive(clap::Args)]
@@ -213,6 +217,7 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
                 anyhow::bail!("--size-weight must be in (0, 100], got {}", a.size_weight);
             }
             cfg.size_weight = a.size_weight;
+            cfg.slow_autograd = a.slow_autograd;
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }
