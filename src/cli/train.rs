@@ -218,6 +218,13 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             }
             cfg.size_weight = a.size_weight;
             cfg.slow_autograd = a.slow_autograd;
+            // candle runs its element-wise ops on a spinning thread pool of its own beside rayon's
+            // (which gemm uses); on 2 busy cores the two pools fight and the spinning took ~40% of
+            // a step (docs/stage1.md, "A training step's profile"). One candle thread unless the
+            // user chose; set before the first candle op, while the process has one thread.
+            if !a.slow_autograd && std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+                std::env::set_var("CANDLE_NUM_THREADS", "1");
+            }
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }
