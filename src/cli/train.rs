@@ -99,6 +99,10 @@ pub struct Stage1Args {
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
+    /// Train with candle's own convolutions and autograd (the reference path, ~5x slower)
+    /// instead of the fast gemm convolutions; for comparison.
+    #[arg(long)]
+    slow_autograd: bool,
 }
 
 #[derive(clap::Args)]
@@ -136,6 +140,14 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
                 anyhow::bail!("--size-weight must be in (0, 100], got {}", a.size_weight);
             }
             cfg.size_weight = a.size_weight;
+            cfg.slow_autograd = a.slow_autograd;
+            // candle runs its element-wise ops on a spinning thread pool of its own beside rayon's
+            // (which gemm uses); on 2 busy cores the two pools fight and the spinning took ~40% of
+            // a step (docs/stage1.md, "A training step's profile"). One candle thread unless the
+            // user chose; set before the first candle op, while the process has one thread.
+            if !a.slow_autograd && std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+                std::env::set_var("CANDLE_NUM_THREADS", "1");
+            }
             if let Some(c) = a.checkpoint {
                 cfg.checkpoint = c;
             }

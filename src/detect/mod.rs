@@ -24,6 +24,7 @@ pub mod calibrate;
 pub mod checkpoint;
 pub mod config;
 pub mod drop;
+pub mod fastconv;
 pub mod gt_sampling;
 pub mod infer;
 pub mod model;

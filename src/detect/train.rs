@@ -265,6 +265,11 @@ pub struct TrainConfig {
     pub size_weight: f32,
     /// The command line, recorded in the manifest.
     pub command: String,
+    /// Train on candle's own conv2d / conv_transpose2d and their autograd (the reference path)
+    /// instead of the fast gemm convolutions ([`super::fastconv`]). Same weights, same function;
+    /// only the float rounding and the speed differ.
+    #[serde(default)]
+    pub slow_autograd: bool,
 }
 
 impl TrainConfig {
@@ -289,6 +294,7 @@ impl TrainConfig {
             gt_sample: 0,
             size_weight: 1.0,
             command: String::new(),
+            slow_autograd: false,
         }
     }
 
@@ -486,7 +492,8 @@ pub fn train_stage1(
             cfg.dataset.display()
         )));
     }
-    let model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
+    let mut model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
+    model.net.fast = !cfg.slow_autograd;
     let database = if cfg.gt_sample > 0 {
         let a = &model.config.anchor;
         GtDatabase::build(&dataset, &train, cfg.case, &a.category, a.min_points)?
@@ -682,6 +689,79 @@ mod training_tests {
         let last = after.cls + after.reg + after.dir;
         assert!(losses.iter().all(|l| l.is_finite()));
         assert!(last < 0.8 * losses[0], "loss {losses:?} -> {last}");
+    }
+
+    /// max |a − b| / max |b| over one tensor.
+    fn rel_err(a: &Tensor, b: &Tensor) -> f32 {
+        let a: Vec<f32> = a.flatten_all().unwrap().to_vec1().unwrap();
+        let b: Vec<f32> = b.flatten_all().unwrap().to_vec1().unwrap();
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
+        a.iter().zip(&b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+    }
+
+    #[test]
+    fn fast_path_step_gradients_equal_the_reference() {
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let token = ds.first_sample_token().unwrap().to_string();
+        let frame = ds.frame(&token).unwrap();
+        let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 4).unwrap();
+        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
+        assert!(!sample.targets.positives.is_empty());
+        let opt = AdamW::new(&model, 0.01).unwrap();
+        let mut runs = Vec::new();
+        for fast in [false, true] {
+            model.net.fast = fast;
+            let l = compute_loss(&model, &sample).unwrap();
+            runs.push((l.cls + l.reg + l.dir, l.total.backward().unwrap()));
+        }
+        let (slow, fast) = (&runs[0], &runs[1]);
+        assert!(
+            (slow.0 - fast.0).abs() <= 1e-5 * slow.0.abs(),
+            "loss {} vs {}",
+            slow.0,
+            fast.0
+        );
+        let mut worst = (0f32, String::new());
+        for (name, p) in &opt.params {
+            let (a, b) = (
+                fast.1.get(p.as_tensor()).unwrap(),
+                slow.1.get(p.as_tensor()).unwrap(),
+            );
+            let e = rel_err(a, b);
+            if e > worst.0 {
+                worst = (e, name.clone());
+            }
+        }
+        assert!(worst.0 < 1e-4, "worst gradient {worst:?}");
+    }
+
+    #[test]
+    fn fast_path_follows_the_reference_loss_curve() {
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let tokens: Vec<String> = ds.samples().into_iter().map(|s| s.sample_token).collect();
+        let mut curves = Vec::new();
+        for fast in [false, true] {
+            let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 9).unwrap();
+            model.net.fast = fast;
+            let mut opt = AdamW::new(&model, 0.01).unwrap();
+            let mut curve = Vec::new();
+            for step in 0..6 {
+                let frame = ds.frame(&tokens[step % tokens.len()]).unwrap();
+                let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
+                let l = compute_loss(&model, &sample).unwrap();
+                curve.push(l.cls + l.reg + l.dir);
+                opt.update(&l.total.backward().unwrap(), 2e-3, 10.0).unwrap();
+            }
+            curves.push(curve);
+        }
+        for (s, f) in curves[0].iter().zip(&curves[1]) {
+            assert!(
+                (s - f).abs() <= 1e-3 * s.abs(),
+                "{:?} vs {:?}",
+                curves[0],
+                curves[1]
+            );
+        }
     }
 
     #[test]
