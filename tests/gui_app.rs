@@ -42,6 +42,15 @@ fn harness_and_render_state(
     session: Option<Session>,
     models: Option<std::path::PathBuf>,
 ) -> (Harness<'static, MlodApp>, egui_wgpu::RenderState) {
+    harness_full(default_dataset(), session, models)
+}
+
+/// The window opened on `dataset` (or the session's), and its wgpu render state.
+fn harness_full(
+    dataset: PathBuf,
+    session: Option<Session>,
+    models: Option<std::path::PathBuf>,
+) -> (Harness<'static, MlodApp>, egui_wgpu::RenderState) {
     let render_state = std::sync::Arc::new(std::sync::Mutex::new(None));
     let rs = render_state.clone();
     let mut h = Harness::builder()
@@ -52,7 +61,7 @@ fn harness_and_render_state(
             MlodApp::new(
                 cc,
                 AppOptions {
-                    dataset: default_dataset(),
+                    dataset,
                     session,
                     synchronous: true,
                     measure_frames: None,
@@ -1574,24 +1583,7 @@ fn kitti_fixture() -> PathBuf {
 }
 
 fn harness_on(dataset: PathBuf, session: Option<Session>) -> Harness<'static, MlodApp> {
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1280.0, 800.0))
-        .wgpu()
-        .build_eframe(move |cc| {
-            MlodApp::new(
-                cc,
-                AppOptions {
-                    dataset,
-                    session,
-                    synchronous: true,
-                    measure_frames: None,
-                    measure_run: false,
-                    models: None,
-                },
-            )
-        });
-    h.run_steps(3);
-    h
+    harness_full(dataset, session, None).0
 }
 
 #[test]
