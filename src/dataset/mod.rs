@@ -23,6 +23,7 @@ pub mod index;
 pub mod inspect;
 pub mod kitti;
 pub mod pointcloud;
+pub mod region;
 pub mod stats;
 pub mod tables;
 
