@@ -1,14 +1,16 @@
 //! One training step of each trained network, the network part only (forward, loss, backward,
 //! AdamW with clipping), data prepared outside the timed loop (issue 28):
-//! - `stage1/fast` and `stage1/slow_autograd`: the shipped LiDAR-Top stage-1 network (33 input
-//!   channels, 256×256 grid, 32 768 anchors) on a sample_data frame, with the gemm convolutions
-//!   (`src/detect/fastconv.rs`, the default of `mlod train stage1`) and with candle's own
+//! - `stage1/native`, `stage1/fast` and `stage1/slow_autograd`: the shipped LiDAR-Top stage-1
+//!   network (33 input channels, 256×256 grid, 32 768 anchors) on a sample_data frame, on the
+//!   native trainer (`src/detect/native/`, the default of `mlod train stage1`), on candle's
+//!   autograd with the gemm convolutions (`src/detect/fastconv.rs`) and with candle's own
 //!   (`--slow-autograd`);
 //! - `refiner/candle`: the stage-2 PointNet (default configuration) on 32 proposals × 1024
 //!   seeded random points (the trainer's batch).
 use candle_core::{Device, Tensor};
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
+use mlod::detect::native::NativeTrainer;
 use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
 use mlod::detect::{Case, ModelConfig, Stage1Model};
 use rand::{Rng, SeedableRng};
@@ -20,6 +22,15 @@ fn bench_stage1(c: &mut Criterion) {
     let frame = ds.frame(&token).expect("frame");
     let mut g = c.benchmark_group("train_step_stage1");
     g.sample_size(10);
+    {
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).expect("model");
+        let sample = prepare_sample(&model, &frame, None, &[]).expect("sample");
+        let opt = AdamW::new(&model, 0.01).expect("optimiser");
+        let mut native = NativeTrainer::new(&model, &opt).expect("trainer");
+        g.bench_function("native", |b| {
+            b.iter(|| native.step(&sample, 1.0, 1e-4, 10.0).expect("step"))
+        });
+    }
     for (name, fast) in [("fast", true), ("slow_autograd", false)] {
         let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).expect("model");
         model.net.fast = fast;

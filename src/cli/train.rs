@@ -99,8 +99,8 @@ pub struct Stage1Args {
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
-    /// Train with candle's own convolutions and autograd (the reference path, ~5x slower)
-    /// instead of the fast gemm convolutions; for comparison.
+    /// Train on candle's autograd graph with its own convolutions (the reference path, ~10x
+    /// slower) instead of the native trainer; for comparison.
     #[arg(long)]
     slow_autograd: bool,
 }

@@ -45,7 +45,7 @@ fn dims4(l: &Layout) -> Result<[usize; 4]> {
 
 /// A row-major view: element (i, j) at `off + i·rs + j·cs`.
 #[derive(Clone, Copy)]
-struct Mat {
+pub(crate) struct Mat {
     rows: usize,
     cols: usize,
     rs: usize,
@@ -53,7 +53,7 @@ struct Mat {
 }
 
 impl Mat {
-    fn rm(rows: usize, cols: usize) -> Self {
+    pub(crate) fn rm(rows: usize, cols: usize) -> Self {
         Self {
             rows,
             cols,
@@ -63,7 +63,7 @@ impl Mat {
     }
 
     /// The transpose of a row-major `rows × cols` matrix (a view, no copy).
-    fn tr(rows: usize, cols: usize) -> Self {
+    pub(crate) fn tr(rows: usize, cols: usize) -> Self {
         Self {
             rows: cols,
             cols: rows,
@@ -72,13 +72,18 @@ impl Mat {
         }
     }
 
+    /// A strided view: element (i, j) at `i·rs + j·cs`.
+    pub(crate) fn strided(rows: usize, cols: usize, rs: usize, cs: usize) -> Self {
+        Self { rows, cols, rs, cs }
+    }
+
     fn fits(&self, len: usize) -> bool {
         self.rows == 0 || self.cols == 0 || (self.rows - 1) * self.rs + (self.cols - 1) * self.cs < len
     }
 }
 
 /// `dst (+)= a · b` with gemm over rayon's threads.
-fn gemm_into(
+pub(crate) fn gemm_into(
     dst: &mut [f32],
     d: Mat,
     a: &[f32],
@@ -132,19 +137,19 @@ fn gemm_into(
 
 /// The shape of one convolution.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Geom {
-    cin: usize,
-    h: usize,
-    w: usize,
-    k: usize,
-    stride: usize,
-    pad: usize,
-    ho: usize,
-    wo: usize,
+pub(crate) struct Geom {
+    pub(crate) cin: usize,
+    pub(crate) h: usize,
+    pub(crate) w: usize,
+    pub(crate) k: usize,
+    pub(crate) stride: usize,
+    pub(crate) pad: usize,
+    pub(crate) ho: usize,
+    pub(crate) wo: usize,
 }
 
 impl Geom {
-    fn new(cin: usize, h: usize, w: usize, k: usize, stride: usize, pad: usize) -> Result<Self> {
+    pub(crate) fn new(cin: usize, h: usize, w: usize, k: usize, stride: usize, pad: usize) -> Result<Self> {
         if k == 0 || stride == 0 || h + 2 * pad < k || w + 2 * pad < k {
             return Err(err(format!(
                 "bad conv geometry {h}×{w}, k {k}, stride {stride}, pad {pad}"
@@ -162,11 +167,11 @@ impl Geom {
         })
     }
 
-    fn kk(&self) -> usize {
+    pub(crate) fn kk(&self) -> usize {
         self.cin * self.k * self.k
     }
 
-    fn p(&self) -> usize {
+    pub(crate) fn p(&self) -> usize {
         self.ho * self.wo
     }
 
@@ -195,7 +200,7 @@ impl Geom {
     }
 
     /// im2col of one image `x[cin, h, w]` into `col[K, P]`, one row per task.
-    fn im2col(&self, x: &[f32], col: &mut [f32]) {
+    pub(crate) fn im2col(&self, x: &[f32], col: &mut [f32]) {
         let (p, k, s) = (self.p(), self.k, self.stride);
         col.par_chunks_mut(p).enumerate().for_each(|(r, row)| {
             let (c, ky, kx) = (r / (k * k), (r / k) % k, r % k);
@@ -224,12 +229,19 @@ impl Geom {
 
     /// col2im: `dx[cin, h, w] = Σ` of `dcol[K, P]`'s entries over the patches each input pixel
     /// is in; one input channel per task, its k·k rows in order.
-    fn col2im(&self, dcol: &[f32], dx: &mut [f32]) {
+    pub(crate) fn col2im(&self, dcol: &[f32], dx: &mut [f32]) {
+        self.col2im_into(dcol, dx, false)
+    }
+
+    /// [`Self::col2im`] added to `dx` when `accumulate`.
+    pub(crate) fn col2im_into(&self, dcol: &[f32], dx: &mut [f32], accumulate: bool) {
         let (p, k, s) = (self.p(), self.k, self.stride);
         dx.par_chunks_mut(self.h * self.w)
             .enumerate()
             .for_each(|(c, plane)| {
-                plane.fill(0.0);
+                if !accumulate {
+                    plane.fill(0.0);
+                }
                 for ky in 0..k {
                     for kx in 0..k {
                         let r = (c * k + ky) * k + kx;
@@ -444,7 +456,7 @@ fn deconv_shape(stride: usize, x: [usize; 4], w: [usize; 4]) -> Result<(usize, u
 }
 
 /// Scatters `z[C_out·s·s, H·W]` into `out[C_out, s·H, s·W]` (or gathers back when `gather`).
-fn deconv_permute(z: &mut [f32], out: &mut [f32], s: usize, h: usize, w: usize, gather: bool) {
+pub(crate) fn deconv_permute(z: &mut [f32], out: &mut [f32], s: usize, h: usize, w: usize, gather: bool) {
     let (p, ow) = (h * w, w * s);
     if gather {
         z.par_chunks_mut(s * s * p).enumerate().for_each(|(co, zc)| {

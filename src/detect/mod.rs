@@ -28,6 +28,7 @@ pub mod fastconv;
 pub mod gt_sampling;
 pub mod infer;
 pub mod model;
+pub mod native;
 pub mod net;
 pub mod oc;
 pub mod optim;

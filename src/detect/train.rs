@@ -13,6 +13,9 @@
 //!   each normalised by the number of positives (SECOND's code weights: the three log-size terms
 //!   times `size_weight`, 1 by default), and one AdamW update (linear warm-up, cosine
 //!   decay, gradient-norm clip 10).
+//! - The step runs on the native trainer ([`super::native`]: forward, backward and AdamW written
+//!   out over flat buffers) unless `slow_autograd` asks for candle's autograd graph; both compute
+//!   the same function and write the same checkpoints.
 //! - Determinism: the sample order of epoch e is a shuffle from ChaCha8(seed, stream e); step s
 //!   draws its augmentation from ChaCha8(seed, stream 2³² + s) and its sampled objects from
 //!   ChaCha8(seed, stream 2³³ + s); weights start from ChaCha8(seed).
@@ -36,6 +39,8 @@ pub use super::calibrate::{calibrate_temperatures, fit_temperature, label_detect
 use super::checkpoint::{loss_rows_before, restore_varmap, write_loss_csv};
 use super::gt_sampling::{paste, GtDatabase, GtObject, Inside};
 use super::model::{branch_points, ModelConfig, Stage1Model};
+use super::native::loss::LossTerms;
+use super::native::NativeTrainer;
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 pub use super::optim::AdamW;
 use super::voxel::{voxelize, Bev, PointsRef};
@@ -172,6 +177,18 @@ pub struct Losses {
     pub reg: f32,
     pub dir: f32,
     pub num_pos: usize,
+}
+
+impl Losses {
+    /// The terms as plain numbers.
+    pub fn terms(&self) -> LossTerms {
+        LossTerms {
+            cls: self.cls,
+            reg: self.reg,
+            dir: self.dir,
+            num_pos: self.num_pos,
+        }
+    }
 }
 
 /// Forward pass and SECOND's loss on a prepared sample.
@@ -492,8 +509,7 @@ pub fn train_stage1(
             cfg.dataset.display()
         )));
     }
-    let mut model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
-    model.net.fast = !cfg.slow_autograd;
+    let model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
     let database = if cfg.gt_sample > 0 {
         let a = &model.config.anchor;
         GtDatabase::build(&dataset, &train, cfg.case, &a.category, a.min_points)?
@@ -513,21 +529,25 @@ pub fn train_stage1(
             rows: Vec::new(),
         }
     };
+    // The native path (the default) or candle's autograd graph (`--slow-autograd`).
+    let mut native = match cfg.slow_autograd {
+        false => Some(NativeTrainer::new(&model, &opt)?),
+        true => None,
+    };
     let start = Instant::now();
     let base_elapsed = ck.elapsed_s;
     let mut last_ckpt = Instant::now();
     let n = train.len() as u64;
-    let mut order: Vec<usize> = Vec::new();
-    let mut order_epoch = u64::MAX;
-    while ck.step < cfg.steps {
-        let step = ck.step;
+    // Samples are prepared one step ahead on a thread of their own (deterministic per step:
+    // the order of epoch e and the draws of step s come from their own ChaCha8 streams).
+    let prepare = |step: u64, order: &mut (u64, Vec<usize>)| -> Result<(PreparedSample, f64), DetectError> {
         let epoch = step / n;
-        if epoch != order_epoch {
-            order = (0..train.len()).collect();
-            order.shuffle(&mut stream_rng(cfg.seed, epoch));
-            order_epoch = epoch;
+        if epoch != order.0 {
+            order.1 = (0..train.len()).collect();
+            order.1.shuffle(&mut stream_rng(cfg.seed, epoch));
+            order.0 = epoch;
         }
-        let token = &train[order[(step % n) as usize]];
+        let token = &train[order.1[(step % n) as usize]];
         let mut rng = stream_rng(cfg.seed, (1u64 << 32) + step);
         let aug = Augmentation::draw(&mut rng);
         let t0 = Instant::now();
@@ -535,39 +555,80 @@ pub fn train_stage1(
         let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
         let sample = prepare_sample(&model, &frame, aug.as_ref(), &objects)?;
-        let t1 = Instant::now();
-        let losses = compute_loss_with(&model, &sample, cfg.size_weight)?;
-        let t2 = Instant::now();
-        let grads = losses.total.backward()?;
-        let t3 = Instant::now();
-        let lr = cfg.lr_at(step);
-        let grad_norm = opt.update(&grads, lr, 10.0)?;
-        let timing_ms = [
-            (t1 - t0).as_secs_f64() * 1e3,
-            (t2 - t1).as_secs_f64() * 1e3,
-            (t3 - t2).as_secs_f64() * 1e3,
-            t3.elapsed().as_secs_f64() * 1e3,
-        ];
-        ck.step += 1;
-        ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
-        let rec = StepRecord {
-            step,
-            loss: losses.cls + losses.reg + losses.dir,
-            cls: losses.cls,
-            reg: losses.reg,
-            dir: losses.dir,
-            num_pos: losses.num_pos,
-            lr,
-            grad_norm,
-            elapsed_s: ck.elapsed_s,
-            timing_ms,
-        };
-        ck.rows.push(rec.csv());
-        on_step(&rec);
-        if last_ckpt.elapsed().as_secs_f64() >= cfg.checkpoint_every_s {
-            save_checkpoint(cfg, &model, &opt, &ck)?;
-            last_ckpt = Instant::now();
+        Ok((sample, t0.elapsed().as_secs_f64() * 1e3))
+    };
+    std::thread::scope(|scope| -> Result<(), DetectError> {
+        // Inside the scope: when a step fails, `rx` is dropped before the scope joins the
+        // loader, whose blocked send then returns.
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let first = ck.step;
+        scope.spawn(move || {
+            let mut order = (u64::MAX, Vec::new());
+            for step in first..cfg.steps {
+                let r = prepare(step, &mut order);
+                let failed = r.is_err();
+                if tx.send(r).is_err() || failed {
+                    break;
+                }
+            }
+        });
+        while ck.step < cfg.steps {
+            let step = ck.step;
+            let (sample, data_ms) = rx
+                .recv()
+                .map_err(|_| DetectError::BadParameter("the sample loader stopped".into()))??;
+            let t1 = Instant::now();
+            let lr = cfg.lr_at(step);
+            let (terms, grad_norm, t2, t3) = match native.as_mut() {
+                Some(n) => {
+                    let terms = n.forward(&sample, cfg.size_weight)?;
+                    let t2 = Instant::now();
+                    n.backward(&sample, terms.num_pos > 0)?;
+                    let t3 = Instant::now();
+                    (terms, n.update(lr, 10.0)?, t2, t3)
+                }
+                None => {
+                    let losses = compute_loss_with(&model, &sample, cfg.size_weight)?;
+                    let t2 = Instant::now();
+                    let grads = losses.total.backward()?;
+                    let t3 = Instant::now();
+                    (losses.terms(), opt.update(&grads, lr, 10.0)?, t2, t3)
+                }
+            };
+            let timing_ms = [
+                data_ms,
+                (t2 - t1).as_secs_f64() * 1e3,
+                (t3 - t2).as_secs_f64() * 1e3,
+                t3.elapsed().as_secs_f64() * 1e3,
+            ];
+            ck.step += 1;
+            ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
+            let rec = StepRecord {
+                step,
+                loss: terms.cls + terms.reg + terms.dir,
+                cls: terms.cls,
+                reg: terms.reg,
+                dir: terms.dir,
+                num_pos: terms.num_pos,
+                lr,
+                grad_norm,
+                elapsed_s: ck.elapsed_s,
+                timing_ms,
+            };
+            ck.rows.push(rec.csv());
+            on_step(&rec);
+            if last_ckpt.elapsed().as_secs_f64() >= cfg.checkpoint_every_s {
+                if let Some(n) = &native {
+                    n.store(&model, &mut opt)?;
+                }
+                save_checkpoint(cfg, &model, &opt, &ck)?;
+                last_ckpt = Instant::now();
+            }
         }
+        Ok(())
+    })?;
+    if let Some(n) = &native {
+        n.store(&model, &mut opt)?;
     }
     save_checkpoint(cfg, &model, &opt, &ck)?;
     let mut meta = BTreeMap::new();
@@ -605,190 +666,5 @@ pub fn train_stage1(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::Box3d;
-
-    #[test]
-    fn augmentation_moves_points_and_boxes_together() {
-        let a = Augmentation {
-            flip_y: true,
-            yaw: 0.05,
-            translation: [0.3, -0.2, 0.1],
-        };
-        let b = Box3d::new([10.0, 4.0, -1.0], [4.5, 1.9, 1.6], 0.7);
-        let p_local = [1.5f64, 0.5, 0.3];
-        let (s, c) = b.yaw.sin_cos();
-        let p = [
-            b.center[0] + c * p_local[0] - s * p_local[1],
-            b.center[1] + s * p_local[0] + c * p_local[1],
-            b.center[2] + p_local[2],
-        ];
-        let mut cloud = FusedCloud {
-            x: vec![p[0] as f32],
-            y: vec![p[1] as f32],
-            z: vec![p[2] as f32],
-            intensity: vec![0.0],
-            ..Default::default()
-        };
-        let mut boxes = [raw_box(&b)];
-        a.apply(&mut cloud, &mut boxes);
-        let nb = Box3d::new(
-            [boxes[0][0] as f64, boxes[0][1] as f64, boxes[0][2] as f64],
-            [4.5, 1.9, 1.6],
-            boxes[0][6] as f64,
-        );
-        let q = nb.to_local([cloud.x[0] as f64, cloud.y[0] as f64, cloud.z[0] as f64]);
-        // Mirrored: the local y flips sign, x and z are kept.
-        assert!(
-            (q[0] - 1.5).abs() < 1e-4 && (q[1] + 0.5).abs() < 1e-4 && (q[2] - 0.3).abs() < 1e-4,
-            "{q:?}"
-        );
-    }
-}
-
-#[cfg(test)]
-mod training_tests {
-    use super::*;
-
-    #[test]
-    fn pasted_objects_become_training_targets() {
-        use crate::detect::gt_sampling::GtDatabase;
-        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
-        let tokens: Vec<String> = ds.samples().into_iter().map(|s| s.sample_token).collect();
-        let frame = ds.frame(&tokens[0]).unwrap();
-        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).unwrap();
-        let db = GtDatabase::build(&ds, &tokens[1..], Case::Top, "car", 5).unwrap();
-        let occupied: Vec<RawBox> = frame.boxes.iter().map(|b| raw_box(&b.box3d)).collect();
-        let picked = db.sample(&mut stream_rng(5, 0), 0, &occupied, 6);
-        assert!(!picked.is_empty());
-        let objects: Vec<&GtObject> = picked.iter().map(|&i| &db.objects[i]).collect();
-        let plain = prepare_sample(&model, &frame, None, &[]).unwrap();
-        let pasted = prepare_sample(&model, &frame, None, &objects).unwrap();
-        assert_eq!(pasted.num_gt, plain.num_gt + objects.len());
-        assert!(pasted.targets.positives.len() > plain.targets.positives.len());
-    }
-
-    #[test]
-    fn a_few_training_steps_lower_the_loss_on_a_sample_frame() {
-        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
-        let token = ds.first_sample_token().unwrap().to_string();
-        let frame = ds.frame(&token).unwrap();
-        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Input), 11).unwrap();
-        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
-        assert!(sample.num_gt > 0 && !sample.targets.positives.is_empty());
-        let mut opt = AdamW::new(&model, 0.01).unwrap();
-        let mut losses = Vec::new();
-        for _ in 0..6 {
-            let l = compute_loss(&model, &sample).unwrap();
-            losses.push(l.cls + l.reg + l.dir);
-            let g = l.total.backward().unwrap();
-            opt.update(&g, 2e-3, 10.0).unwrap();
-        }
-        let after = compute_loss(&model, &sample).unwrap();
-        let last = after.cls + after.reg + after.dir;
-        assert!(losses.iter().all(|l| l.is_finite()));
-        assert!(last < 0.8 * losses[0], "loss {losses:?} -> {last}");
-    }
-
-    /// max |a − b| / max |b| over one tensor.
-    fn rel_err(a: &Tensor, b: &Tensor) -> f32 {
-        let a: Vec<f32> = a.flatten_all().unwrap().to_vec1().unwrap();
-        let b: Vec<f32> = b.flatten_all().unwrap().to_vec1().unwrap();
-        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
-        a.iter().zip(&b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
-    }
-
-    #[test]
-    fn fast_path_step_gradients_equal_the_reference() {
-        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
-        let token = ds.first_sample_token().unwrap().to_string();
-        let frame = ds.frame(&token).unwrap();
-        let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 4).unwrap();
-        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
-        assert!(!sample.targets.positives.is_empty());
-        let opt = AdamW::new(&model, 0.01).unwrap();
-        let mut runs = Vec::new();
-        for fast in [false, true] {
-            model.net.fast = fast;
-            let l = compute_loss(&model, &sample).unwrap();
-            runs.push((l.cls + l.reg + l.dir, l.total.backward().unwrap()));
-        }
-        let (slow, fast) = (&runs[0], &runs[1]);
-        assert!(
-            (slow.0 - fast.0).abs() <= 1e-5 * slow.0.abs(),
-            "loss {} vs {}",
-            slow.0,
-            fast.0
-        );
-        let mut worst = (0f32, String::new());
-        for (name, p) in &opt.params {
-            let (a, b) = (
-                fast.1.get(p.as_tensor()).unwrap(),
-                slow.1.get(p.as_tensor()).unwrap(),
-            );
-            let e = rel_err(a, b);
-            if e > worst.0 {
-                worst = (e, name.clone());
-            }
-        }
-        assert!(worst.0 < 1e-4, "worst gradient {worst:?}");
-    }
-
-    #[test]
-    fn fast_path_follows_the_reference_loss_curve() {
-        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
-        let tokens: Vec<String> = ds.samples().into_iter().map(|s| s.sample_token).collect();
-        let mut curves = Vec::new();
-        for fast in [false, true] {
-            let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 9).unwrap();
-            model.net.fast = fast;
-            let mut opt = AdamW::new(&model, 0.01).unwrap();
-            let mut curve = Vec::new();
-            for step in 0..6 {
-                let frame = ds.frame(&tokens[step % tokens.len()]).unwrap();
-                let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
-                let l = compute_loss(&model, &sample).unwrap();
-                curve.push(l.cls + l.reg + l.dir);
-                opt.update(&l.total.backward().unwrap(), 2e-3, 10.0).unwrap();
-            }
-            curves.push(curve);
-        }
-        for (s, f) in curves[0].iter().zip(&curves[1]) {
-            assert!(
-                (s - f).abs() <= 1e-3 * s.abs(),
-                "{:?} vs {:?}",
-                curves[0],
-                curves[1]
-            );
-        }
-    }
-
-    #[test]
-    fn size_weight_scales_only_the_size_terms() {
-        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
-        let token = ds.first_sample_token().unwrap().to_string();
-        let frame = ds.frame(&token).unwrap();
-        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 3).unwrap();
-        let sample = prepare_sample(&model, &frame, None, &[]).unwrap();
-        let plain = compute_loss(&model, &sample).unwrap();
-        let one = compute_loss_with(&model, &sample, 1.0).unwrap();
-        assert_eq!(plain.reg.to_bits(), one.reg.to_bits());
-        let heavy = compute_loss_with(&model, &sample, 5.0).unwrap();
-        let light = compute_loss_with(&model, &sample, 0.0).unwrap();
-        // Classification and direction do not see the weight; the size terms weigh 0, 1 and 5.
-        assert_eq!(plain.cls.to_bits(), heavy.cls.to_bits());
-        assert_eq!(plain.dir.to_bits(), heavy.dir.to_bits());
-        let size_part = plain.reg - light.reg;
-        assert!(
-            size_part > 1e-6,
-            "an untrained net has size residuals: {size_part}"
-        );
-        let expect = light.reg + 5.0 * size_part;
-        assert!(
-            (heavy.reg - expect).abs() <= 1e-4 * expect.abs(),
-            "{} vs {expect}",
-            heavy.reg
-        );
-    }
-}
+#[path = "train_tests.rs"]
+mod tests;

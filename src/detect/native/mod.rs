@@ -1,0 +1,576 @@
+//! The native training path of the stage-1 networks (issue 28): the training counterpart of the
+//! folded inference network ([`super::infer::FastNet`]). Forward and backward of every layer are
+//! written out over flat buffers that live as long as the trainer — convolutions as im2col +
+//! gemm, the neck's transposed convolution as gemm + scatter, BatchNorm (batch statistics) fused
+//! with its ReLU, the heads, SECOND's loss ([`loss`]) and AdamW with global-norm clipping — with
+//! no graph, no allocation per op and no zero-filling beyond what a layer needs.
+//!
+//! It computes the function and the update of the candle graph ([`super::net::Stage1Net`] +
+//! [`super::train::compute_loss_with`] + [`super::optim::AdamW`]) to float rounding: the tests
+//! compare every gradient and whole training runs against candle's autograd. The trainer reads
+//! its tensors from, and writes them back to, the candle model's variables and the AdamW moments
+//! ([`NativeTrainer::store`]), so checkpoints and weight files are the same on either path.
+//!
+//! Work is parallel over rayon's threads (gemm's blocks, one channel per task elsewhere) and
+//! every reduction runs in a fixed order, so a step is deterministic for a given thread count.
+
+mod layers;
+pub mod loss;
+#[cfg(test)]
+mod tests;
+
+use std::collections::HashMap;
+
+use candle_core::{Device, Tensor};
+
+use self::layers::{ConvBn, DeconvBn, Heads, Param};
+use self::loss::{loss_and_grad, LossTerms};
+use super::fastconv::Geom;
+use super::model::Stage1Model;
+use super::net::branch_prefix;
+use super::optim::AdamW;
+use super::train::PreparedSample;
+use super::DetectError;
+
+/// One LiDAR branch's middle layers.
+#[derive(Debug)]
+struct Branch {
+    conv1: ConvBn,
+    conv2: ConvBn,
+}
+
+/// The outcome of one training step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NativeStep {
+    pub loss: LossTerms,
+    /// The global gradient norm before clipping.
+    pub grad_norm: f64,
+}
+
+/// A stage-1 network's tensors and buffers for training (see the module doc).
+#[derive(Debug)]
+pub struct NativeTrainer {
+    /// Trainable tensors in AdamW's order (name order).
+    params: Vec<Param>,
+    /// BatchNorm's running statistics.
+    stats: Vec<Param>,
+    m: Vec<Vec<f32>>,
+    v: Vec<Vec<f32>>,
+    step: u64,
+    beta1: f64,
+    beta2: f64,
+    eps: f64,
+    weight_decay: f64,
+    branches: Vec<Branch>,
+    /// Running maxima over the present branches (Feature Fusion), and ∂L/∂(fused map).
+    fused: Vec<Vec<f32>>,
+    dfused: Vec<f32>,
+    block1: Vec<ConvBn>,
+    block2: Vec<ConvBn>,
+    up1: ConvBn,
+    up2: DeconvBn,
+    heads: Heads,
+    anchors_per_cell: usize,
+}
+
+fn tensor_values(t: &Tensor) -> candle_core::Result<(Vec<usize>, Vec<f32>)> {
+    Ok((t.dims().to_vec(), t.flatten_all()?.to_vec1::<f32>()?))
+}
+
+/// Looks tensors up by name.
+struct Names<'a> {
+    params: HashMap<&'a str, usize>,
+    stats: HashMap<&'a str, usize>,
+    all: &'a [Param],
+}
+
+impl Names<'_> {
+    fn param(&self, name: &str) -> Result<usize, DetectError> {
+        self.params
+            .get(name)
+            .copied()
+            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
+    }
+
+    fn stat(&self, name: &str) -> Result<usize, DetectError> {
+        self.stats
+            .get(name)
+            .copied()
+            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
+    }
+
+    fn shape(&self, name: &str) -> Result<&[usize], DetectError> {
+        Ok(&self.all[self.param(name)?].shape)
+    }
+
+    /// γ, β, running mean, running var of the BatchNorm under `prefix`.
+    fn bn(&self, prefix: &str) -> Result<[usize; 4], DetectError> {
+        Ok([
+            self.param(&format!("{prefix}.bn.weight"))?,
+            self.param(&format!("{prefix}.bn.bias"))?,
+            self.stat(&format!("{prefix}.bn.running_mean"))?,
+            self.stat(&format!("{prefix}.bn.running_var"))?,
+        ])
+    }
+
+    /// The conv + BN layer `prefix` on an input of `cin × h × w`, with padding k/2.
+    fn conv(&self, prefix: &str, h: usize, w: usize, stride: usize) -> Result<ConvBn, DetectError> {
+        let name = format!("{prefix}.conv.weight");
+        let s = self.shape(&name)?;
+        let &[cout, cin, k, k2] = s else {
+            return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
+        };
+        if k != k2 {
+            return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
+        }
+        let geom = Geom::new(cin, h, w, k, stride, k / 2)?;
+        Ok(ConvBn::new(geom, cout, self.param(&name)?, self.bn(prefix)?))
+    }
+}
+
+impl NativeTrainer {
+    /// The trainer of `model` (trainable) with the state of `opt` (its moments and step).
+    pub fn new(model: &Stage1Model, opt: &AdamW) -> Result<Self, DetectError> {
+        let varmap = model
+            .varmap
+            .as_ref()
+            .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
+        let mut params = Vec::with_capacity(opt.params.len());
+        for (name, var) in &opt.params {
+            let (shape, value) = tensor_values(var.as_tensor())?;
+            let grad = vec![0.0; value.len()];
+            params.push(Param {
+                name: name.clone(),
+                shape,
+                value,
+                grad,
+                has_grad: false,
+            });
+        }
+        let mut stats = Vec::new();
+        {
+            let data = varmap
+                .data()
+                .lock()
+                .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+            let mut names: Vec<&String> = data.keys().filter(|k| k.contains("running")).collect();
+            names.sort();
+            for name in names {
+                if let Some(var) = data.get(name) {
+                    let (shape, value) = tensor_values(var.as_tensor())?;
+                    stats.push(Param {
+                        name: name.clone(),
+                        shape,
+                        value,
+                        grad: Vec::new(),
+                        has_grad: false,
+                    });
+                }
+            }
+        }
+        let moments = |ts: &[Tensor]| -> candle_core::Result<Vec<Vec<f32>>> {
+            ts.iter().map(|t| t.flatten_all()?.to_vec1::<f32>()).collect()
+        };
+        let (m, v) = (moments(&opt.m)?, moments(&opt.v)?);
+        let names = Names {
+            params: params
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (p.name.as_str(), i))
+                .collect(),
+            stats: stats
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (p.name.as_str(), i))
+                .collect(),
+            all: &params,
+        };
+        let cfg = &model.config;
+        let n = cfg.grid.n;
+        let branch_names: Vec<&str> = model.net.branches.iter().map(|(b, _)| b.as_str()).collect();
+        let mut branches = Vec::new();
+        for b in &branch_names {
+            let prefix = branch_prefix(&branch_names, b);
+            let conv1 = names.conv(&format!("{prefix}.conv1"), n, n, 2)?;
+            let (h1, w1) = (conv1.geom_out().0, conv1.geom_out().1);
+            let conv2 = names.conv(&format!("{prefix}.conv2"), h1, w1, 1)?;
+            branches.push(Branch { conv1, conv2 });
+        }
+        let (h1, w1) = branches
+            .first()
+            .map(|b| b.conv2.geom_out())
+            .ok_or_else(|| DetectError::BadParameter("a network without branches".into()))?;
+        let layers = cfg.net.rpn_layers;
+        if layers == 0 {
+            return Err(DetectError::BadParameter(
+                "the native trainer needs rpn_layers >= 1 (train with --slow-autograd)".into(),
+            ));
+        }
+        let block1 = (0..layers)
+            .map(|i| names.conv(&format!("rpn.block1.{i}"), h1, w1, 1))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut block2 = vec![names.conv("rpn.block2.0", h1, w1, 2)?];
+        let (h2, w2) = block2[0].geom_out();
+        for i in 1..=layers {
+            block2.push(names.conv(&format!("rpn.block2.{i}"), h2, w2, 1)?);
+        }
+        let up1 = names.conv("rpn.up1", h1, w1, 1)?;
+        let dname = "rpn.up2.deconv.weight";
+        let ds = names.shape(dname)?;
+        let &[dcin, dcout, s, s2] = ds else {
+            return Err(DetectError::BadParameter(format!("{dname}: shape {ds:?}")));
+        };
+        if s != s2 || h2 * s != h1 || w2 * s != w1 || dcout != up1.cout() {
+            return Err(DetectError::BadParameter(format!(
+                "{dname}: shape {ds:?} does not bring {h2}×{w2} to {h1}×{w1}"
+            )));
+        }
+        let up2 = DeconvBn::new(dcin, dcout, s, h2, w2, names.param(dname)?, names.bn("rpn.up2")?);
+        let na = cfg.net.anchors_per_cell;
+        let head = |name: &str, rows: usize| -> Result<(usize, usize, usize), DetectError> {
+            let w = names.param(&format!("rpn.{name}.weight"))?;
+            let shape = &params[w].shape;
+            if shape.len() != 4 || shape[0] != rows || shape[1] != 2 * dcout {
+                return Err(DetectError::BadParameter(format!(
+                    "rpn.{name}.weight: shape {shape:?}, expected [{rows}, {}, 1, 1]",
+                    2 * dcout
+                )));
+            }
+            Ok((w, names.param(&format!("rpn.{name}.bias"))?, rows))
+        };
+        let parts = [head("cls", na)?, head("reg", 7 * na)?, head("dir", 2 * na)?];
+        let heads = Heads::new(parts, dcout, h1 * w1);
+        let mid = branches[0].conv2.cout() * h1 * w1;
+        let fused = (1..branches.len()).map(|_| vec![0.0; mid]).collect();
+        Ok(Self {
+            params,
+            stats,
+            m,
+            v,
+            step: opt.step,
+            beta1: opt.beta1,
+            beta2: opt.beta2,
+            eps: opt.eps,
+            weight_decay: opt.weight_decay,
+            branches,
+            fused,
+            dfused: vec![0.0; mid],
+            block1,
+            block2,
+            up1,
+            up2,
+            heads,
+            anchors_per_cell: na,
+        })
+    }
+
+    /// Forward, loss and backward on a prepared sample: the gradients of this step.
+    pub fn forward_backward(
+        &mut self,
+        s: &PreparedSample,
+        size_weight: f32,
+    ) -> Result<LossTerms, DetectError> {
+        let terms = self.forward(s, size_weight)?;
+        self.backward(s, terms.num_pos > 0)?;
+        Ok(terms)
+    }
+
+    /// The indices of the branches whose LiDAR is present in `s`.
+    fn present(&self, s: &PreparedSample) -> Result<Vec<usize>, DetectError> {
+        if s.bevs.len() != self.branches.len() {
+            return Err(DetectError::BadParameter(format!(
+                "{} inputs for {} branches",
+                s.bevs.len(),
+                self.branches.len()
+            )));
+        }
+        let present: Vec<usize> = (0..s.bevs.len()).filter(|&i| s.bevs[i].is_some()).collect();
+        if present.is_empty() {
+            return Err(DetectError::BadParameter(
+                "none of the case's LiDARs is present".into(),
+            ));
+        }
+        Ok(present)
+    }
+
+    /// Forward pass and loss; leaves ∂L/∂(head outputs) for [`Self::backward`].
+    pub fn forward(&mut self, s: &PreparedSample, size_weight: f32) -> Result<LossTerms, DetectError> {
+        let present = self.present(s)?;
+        for p in &mut self.params {
+            p.has_grad = false;
+        }
+        let na = self.anchors_per_cell;
+        let Self {
+            params,
+            stats,
+            branches,
+            fused,
+            block1,
+            block2,
+            up1,
+            up2,
+            heads,
+            ..
+        } = &mut *self;
+        for &i in &present {
+            let Some(bev) = &s.bevs[i] else { continue };
+            let b = &mut branches[i];
+            if bev.data.len() != b.conv1.input_len() {
+                return Err(DetectError::BadParameter(format!(
+                    "a BEV input of {} values, the network takes {}",
+                    bev.data.len(),
+                    b.conv1.input_len()
+                )));
+            }
+            b.conv1.forward(&bev.data, params, stats)?;
+            b.conv2.forward(&b.conv1.bn.out, params, stats)?;
+        }
+        for k in 1..present.len() {
+            let prev: &[f32] = if k == 1 {
+                &branches[present[0]].conv2.bn.out
+            } else {
+                &fused[k - 2]
+            };
+            let cur = &branches[present[k]].conv2.bn.out;
+            let maxed: Vec<f32> = prev.iter().zip(cur).map(|(a, b)| a.max(*b)).collect();
+            fused[k - 1] = maxed;
+        }
+        let feat: &[f32] = if present.len() == 1 {
+            &branches[present[0]].conv2.bn.out
+        } else {
+            &fused[present.len() - 2]
+        };
+        stack_forward(block1, feat, params, stats)?;
+        let a = last_out(block1);
+        stack_forward(block2, a, params, stats)?;
+        up1.forward(a, params, stats)?;
+        up2.forward(last_out(block2), params, stats)?;
+        heads.forward(&up1.bn.out, &up2.bn.out, params)?;
+        let p = up1.bn.out.len() / up1.cout();
+        loss_and_grad(&heads.h, &mut heads.dh, p, na, &s.targets, size_weight)
+    }
+
+    /// Backward pass of the last [`Self::forward`] on the same sample: every gradient. The box
+    /// and direction heads are reached only when the sample had positives (`box_heads`).
+    pub fn backward(&mut self, s: &PreparedSample, box_heads: bool) -> Result<(), DetectError> {
+        let present = self.present(s)?;
+        let Self {
+            params,
+            branches,
+            fused,
+            dfused,
+            block1,
+            block2,
+            up1,
+            up2,
+            heads,
+            ..
+        } = &mut *self;
+        let feat: &[f32] = if present.len() == 1 {
+            &branches[present[0]].conv2.bn.out
+        } else {
+            &fused[present.len() - 2]
+        };
+        heads.backward(
+            &up1.bn.out,
+            &up2.bn.out,
+            params,
+            [true, box_heads, box_heads],
+            &mut up1.bn.dout,
+            &mut up2.bn.dout,
+        )?;
+        {
+            let last = block2.last_mut().ok_or_else(no_layer)?;
+            up2.backward(&last.bn.out, params, Some((&mut last.bn.dout, false)))?;
+        }
+        {
+            let last1 = block1.last_mut().ok_or_else(no_layer)?;
+            stack_backward(block2, &last1.bn.out, params, Some((&mut last1.bn.dout, false)))?;
+            up1.backward(&last1.bn.out, params, Some((&mut last1.bn.dout, true)))?;
+        }
+        stack_backward(block1, feat, params, Some((dfused, false)))?;
+        // The fused map's gradient back to the branches (candle's maximum: ties share it).
+        if present.len() == 1 {
+            std::mem::swap(dfused, &mut branches[present[0]].conv2.bn.dout);
+        } else {
+            let mut g = std::mem::take(dfused);
+            for k in (1..present.len()).rev() {
+                let node = &fused[k - 1];
+                let prev: &[f32] = if k == 1 {
+                    &branches[present[0]].conv2.bn.out
+                } else {
+                    &fused[k - 2]
+                };
+                let cur = &branches[present[k]].conv2.bn.out;
+                let mut g_prev = vec![0f32; g.len()];
+                let mut g_cur = vec![0f32; g.len()];
+                for i in 0..g.len() {
+                    let (ml, mr) = (
+                        (prev[i] == node[i]) as u8 as f32,
+                        (cur[i] == node[i]) as u8 as f32,
+                    );
+                    g_prev[i] = ml * g[i] / (mr + 1.0);
+                    g_cur[i] = mr * g[i] / (ml + 1.0);
+                }
+                branches[present[k]].conv2.bn.dout = g_cur;
+                g = g_prev;
+            }
+            let first = &mut branches[present[0]].conv2.bn.dout;
+            *dfused = std::mem::replace(first, g);
+        }
+        for &i in &present {
+            let Some(bev) = &s.bevs[i] else { continue };
+            let b = &mut branches[i];
+            b.conv2
+                .backward(&b.conv1.bn.out, params, Some((&mut b.conv1.bn.dout, false)))?;
+            b.conv1.backward(&bev.data, params, None)?;
+        }
+        Ok(())
+    }
+
+    /// One training step: forward, loss, backward and AdamW with learning rate `lr`, the
+    /// gradients scaled to a global norm of at most `clip`.
+    pub fn step(
+        &mut self,
+        s: &PreparedSample,
+        size_weight: f32,
+        lr: f64,
+        clip: f64,
+    ) -> Result<NativeStep, DetectError> {
+        let loss = self.forward_backward(s, size_weight)?;
+        let grad_norm = self.update(lr, clip)?;
+        Ok(NativeStep { loss, grad_norm })
+    }
+
+    /// AdamW over the tensors the last step reached, as [`AdamW::update`] computes it; the
+    /// gradient norm before clipping.
+    pub fn update(&mut self, lr: f64, clip: f64) -> Result<f64, DetectError> {
+        let sq: f64 = self
+            .params
+            .iter()
+            .filter(|p| p.has_grad)
+            .map(|p| p.grad.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>())
+            .sum();
+        let norm = sq.sqrt();
+        if !norm.is_finite() {
+            return Err(DetectError::BadParameter(format!("gradient norm is {norm}")));
+        }
+        let scale = if norm > clip { (clip / norm) as f32 } else { 1.0 };
+        self.step += 1;
+        let t = self.step as i32;
+        let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
+        let (c1, c2) = ((1.0 - self.beta1) as f32, (1.0 - self.beta2) as f32);
+        let inv_bc1 = (1.0 / (1.0 - self.beta1.powi(t))) as f32;
+        let inv_bc2 = (1.0 / (1.0 - self.beta2.powi(t))) as f32;
+        let (eps, decay, lr32) = (self.eps as f32, (1.0 - lr * self.weight_decay) as f32, lr as f32);
+        for ((p, m), v) in self.params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
+            if !p.has_grad {
+                continue;
+            }
+            for (((w, &g), m), v) in p
+                .value
+                .iter_mut()
+                .zip(&p.grad)
+                .zip(m.iter_mut())
+                .zip(v.iter_mut())
+            {
+                let g = g * scale;
+                *m = *m * b1 + g * c1;
+                *v = *v * b2 + g * g * c2;
+                let upd = (*m * inv_bc1) / ((*v * inv_bc2).sqrt() + eps);
+                *w = *w * decay - upd * lr32;
+            }
+        }
+        Ok(norm)
+    }
+
+    /// Writes the weights and running statistics into `model`'s variables and the moments and
+    /// step count into `opt` (before a checkpoint or the final weights are written).
+    pub fn store(&self, model: &Stage1Model, opt: &mut AdamW) -> Result<(), DetectError> {
+        let dev = Device::Cpu;
+        if opt.params.len() != self.params.len() {
+            return Err(DetectError::BadParameter(
+                "the optimiser does not fit the trainer".into(),
+            ));
+        }
+        for (k, (p, (_, var))) in self.params.iter().zip(&opt.params).enumerate() {
+            var.set(&Tensor::from_slice(&p.value, p.shape.as_slice(), &dev)?)?;
+            opt.m[k] = Tensor::from_slice(&self.m[k], p.shape.as_slice(), &dev)?;
+            opt.v[k] = Tensor::from_slice(&self.v[k], p.shape.as_slice(), &dev)?;
+        }
+        opt.step = self.step;
+        let varmap = model
+            .varmap
+            .as_ref()
+            .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+        for s in &self.stats {
+            if let Some(var) = data.get(&s.name) {
+                var.set(&Tensor::from_slice(&s.value, s.shape.as_slice(), &dev)?)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The gradient of tensor `name` from the last step, if the step reached it.
+    pub fn gradient(&self, name: &str) -> Option<&[f32]> {
+        self.params
+            .iter()
+            .find(|p| p.name == name && p.has_grad)
+            .map(|p| p.grad.as_slice())
+    }
+
+    /// A tensor's current value (trainable or running statistic).
+    pub fn value(&self, name: &str) -> Option<&[f32]> {
+        self.params
+            .iter()
+            .chain(&self.stats)
+            .find(|p| p.name == name)
+            .map(|p| p.value.as_slice())
+    }
+}
+
+fn no_layer() -> DetectError {
+    DetectError::BadParameter("an RPN block without layers".into())
+}
+
+fn last_out(v: &[ConvBn]) -> &[f32] {
+    v.last().map(|l| l.bn.out.as_slice()).unwrap_or(&[])
+}
+
+/// Runs a stack of layers on `input`.
+fn stack_forward(
+    layers: &mut [ConvBn],
+    input: &[f32],
+    params: &[Param],
+    stats: &mut [Param],
+) -> candle_core::Result<()> {
+    for i in 0..layers.len() {
+        let (done, rest) = layers.split_at_mut(i);
+        let x = done.last().map(|l| l.bn.out.as_slice()).unwrap_or(input);
+        rest[0].forward(x, params, stats)?;
+    }
+    Ok(())
+}
+
+/// Backward through a stack whose last layer's `bn.dout` is set; the first layer's input
+/// gradient goes to `dinput`.
+fn stack_backward(
+    layers: &mut [ConvBn],
+    input: &[f32],
+    params: &mut [Param],
+    mut dinput: layers::InputGrad<'_>,
+) -> candle_core::Result<()> {
+    for i in (0..layers.len()).rev() {
+        let (done, rest) = layers.split_at_mut(i);
+        let cur = &mut rest[0];
+        match done.last_mut() {
+            Some(prev) => cur.backward(&prev.bn.out, params, Some((&mut prev.bn.dout, false)))?,
+            None => cur.backward(input, params, dinput.take())?,
+        }
+    }
+    Ok(())
+}
