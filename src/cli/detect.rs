@@ -39,11 +39,14 @@ pub struct DetectorRun {
     /// the threshold chosen on the validation scenes).
     #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
+    #[command(flatten)]
+    pub external: super::external::ExternalArgs,
 }
 
 impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
+        self.external.define_for(&[case])?;
         Ok(mlod::refine::load_detector_oc(
             &self.models_dir(),
             case,

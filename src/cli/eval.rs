@@ -319,6 +319,7 @@ fn trials(
         let run = DetectorRun {
             seed,
             models: args.run.models.clone(),
+            external: args.run.external.clone(),
             ..args.run
         };
         let report = run_case(dataset, tokens, &run, case, &run.fuse_params()?, opts)?;
