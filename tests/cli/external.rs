@@ -412,3 +412,31 @@ fn a_failed_sweep_unit_is_reported_and_retried_on_resume() {
     assert!(csv.lines().any(|l| l.starts_with("ext:X,0.1,0,")), "{csv}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_cli_never_runs_a_session_s_detector() {
+    let dir = tmp("session");
+    let marker = format!("marker-{}-session", std::process::id());
+    let words = ["python3", FAKE, "instant", &marker].map(String::from).to_vec();
+    let mut s = mlod::session::Session::new(DATA.into());
+    s.detection.case = "ext:shared".parse().unwrap();
+    s.external = vec![mlod::detect::external::ExternalSpec::new("shared", words).unwrap()];
+    let path = dir.join("shared.session.json");
+    s.save(&path).unwrap();
+    let gif = dir.join("clip.gif");
+    let o = run(&[
+        "clip",
+        "--session",
+        path.to_str().unwrap(),
+        "--frames",
+        "2",
+        "--out",
+        gif.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("--detector shared=COMMAND"), "{err}");
+    assert!(!gif.exists());
+    assert_eq!(alive(&marker), 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

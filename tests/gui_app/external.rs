@@ -6,6 +6,7 @@ use mlod::detect::external::{spawn_count, ExternalSpec};
 use mlod::detect::Case;
 use mlod::session::Session;
 
+use egui_kittest::kittest::{NodeT, Queryable};
 use mlod::color::ColorMode;
 
 use super::{harness, session_at};
@@ -52,7 +53,10 @@ fn an_external_case_asks_before_anything_runs() {
     assert_eq!(spawn_count(&command), 0, "loading the session started nothing");
     assert!(h.state().consent_pending().is_none());
     // The case list offers it (and the refiner on it).
-    h.get_by_label("ext:guiext").click();
+    h.query_all_by_label("case")
+        .find(|n| n.accesskit_node().role() == egui::accesskit::Role::ComboBox)
+        .expect("the case list")
+        .click();
     h.run_steps(2);
     assert!(h.query_by_label("mlod-ext:guiext").is_some());
     h.key_press(egui::Key::Escape);

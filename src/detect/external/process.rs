@@ -153,9 +153,11 @@ impl ExternalDetector {
         ));
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let folder = std::path::absolute(&folder).unwrap_or(folder);
-        *spawns().entry(self.spec.command_line()).or_default() += 1;
         let mut child = match cmd.spawn() {
-            Ok(c) => c,
+            Ok(c) => {
+                *spawns().entry(self.spec.command_line()).or_default() += 1;
+                c
+            }
             Err(e) => {
                 let _ = std::fs::remove_dir_all(&folder);
                 let dir = self.spec.dir.as_ref().map(|d| format!(" in {}", d.display()));
