@@ -18,7 +18,8 @@ pub struct SweepArgs {
     /// Dataset root or its version folder (the held-out test split for Table II).
     #[arg(long)]
     pub dataset: Option<PathBuf>,
-    /// Cases, comma-separated (e.g. top,input,mlod-i,input-oc,mlod-i-oc).
+    /// Cases, comma-separated (e.g. top,input,mlod-i,input-oc,mlod-i-oc; ext:NAME and mlod-ext:NAME
+    /// with --detector, docs/external.md).
     #[arg(
         long,
         value_delimiter = ',',
