@@ -87,9 +87,16 @@ pub struct Session {
     pub source: SessionSource,
 }
 
-/// Where a session was read from. Not part of what the session is: any two compare equal.
-#[derive(Debug, Clone, Default)]
+/// Where a session was read from. Not part of what the session is: any two compare equal and
+/// print alike.
+#[derive(Clone, Default)]
 pub struct SessionSource(pub Option<PathBuf>);
+
+impl std::fmt::Debug for SessionSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SessionSource")
+    }
+}
 
 impl PartialEq for SessionSource {
     fn eq(&self, _: &Self) -> bool {
