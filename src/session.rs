@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{Calibration, OcPrior};
 use crate::color::ColorParams;
 use crate::dataset::LidarChannel;
+use crate::detect::external::ExternalSpec;
 use crate::detect::Case;
 use crate::io::{write_atomic, IoError};
 use crate::pipeline::FuseParams;
@@ -75,6 +76,32 @@ pub struct Session {
     /// The failure browser's source, when it is open: reopening the session scans again.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub failures: Option<FailureScope>,
+    /// The external detectors its cases name (`ext:NAME`, `mlod-ext:NAME`), with their commands.
+    /// Data that people share: the window asks before running one (`gui::consent`), the CLI
+    /// never runs one unless its own command line names it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub external: Vec<ExternalSpec>,
+    /// The file the session was loaded from (not saved): what a consent to its detectors is
+    /// remembered for.
+    #[serde(skip)]
+    pub source: SessionSource,
+}
+
+/// Where a session was read from. Not part of what the session is: any two compare equal and
+/// print alike.
+#[derive(Clone, Default)]
+pub struct SessionSource(pub Option<PathBuf>);
+
+impl std::fmt::Debug for SessionSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SessionSource")
+    }
+}
+
+impl PartialEq for SessionSource {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Which samples the failure browser scans.
@@ -206,6 +233,8 @@ impl Session {
             compare: None,
             sweep: None,
             failures: None,
+            external: Vec::new(),
+            source: SessionSource::default(),
         }
     }
 
@@ -228,7 +257,10 @@ impl Session {
             message: e.to_string(),
         })?;
         s.validate(path)?;
-        Ok(s)
+        Ok(Session {
+            source: SessionSource(Some(path.to_path_buf())),
+            ..s
+        })
     }
 
     fn validate(&self, path: &Path) -> Result<(), SessionError> {
@@ -285,6 +317,10 @@ impl Session {
                 "detection.match_iou",
                 format!("{} (must be in (0, 1])", d.match_iou),
             ));
+        }
+        for (i, e) in self.external.iter().enumerate() {
+            e.validate()
+                .map_err(|err| bad(&format!("external[{i}]"), err.to_string()))?;
         }
         if let Some(sel) = &self.selection {
             if sel.center.iter().any(|v| !v.is_finite()) {

@@ -32,6 +32,9 @@ use crate::pipeline::{calibrate, fuse, FuseParams};
 use crate::refine::Refiner;
 use crate::uncertainty::Perturbation;
 
+mod shard;
+pub use shard::{Shard, ShardSpec};
+
 /// How perturbations are drawn across the samples of a trial.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
@@ -61,6 +64,10 @@ pub struct SweepConfig {
     /// `input-drop`'s threshold on tr(Ξ) (m²), when that case is swept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drop_trace: Option<f32>,
+    /// The command line of each external detector swept (`ext:NAME`, `mlod-ext:NAME`), by name:
+    /// a resumed or merged sweep must have run the same programs.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub detectors: BTreeMap<String, String>,
 }
 
 /// One unit of work.
@@ -100,6 +107,14 @@ pub enum SweepError {
     File { path: PathBuf, what: String },
     #[error("merge: {0}")]
     Merge(String),
+    /// A group of units failed; they are not written, so resuming retries them.
+    #[error("α {alpha}, trial {trial} (units {units}) failed and will be retried when the sweep is resumed: {source}")]
+    Group {
+        alpha: f64,
+        trial: usize,
+        units: String,
+        source: Box<SweepError>,
+    },
     #[error(transparent)]
     Detect(#[from] DetectError),
     #[error(transparent)]
@@ -229,37 +244,6 @@ impl SweepConfig {
                 .wrapping_add(j as u64),
         };
         Perturbation::new(alpha, seed).map_err(|e| SweepError::BadParameter(e.to_string()))
-    }
-}
-
-/// Which shard of the groups to run: `index` of `count` (0-based).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Shard {
-    pub index: usize,
-    pub count: usize,
-}
-
-impl Default for Shard {
-    fn default() -> Self {
-        Self { index: 0, count: 1 }
-    }
-}
-
-impl std::str::FromStr for Shard {
-    type Err = String;
-    /// `i/n` with 0 ≤ i < n.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (i, n) = s
-            .split_once('/')
-            .ok_or_else(|| format!("'{s}': expected i/n, e.g. 0/4"))?;
-        let (index, count): (usize, usize) = (
-            i.trim().parse().map_err(|_| format!("'{s}': bad shard index"))?,
-            n.trim().parse().map_err(|_| format!("'{s}': bad shard count"))?,
-        );
-        if count == 0 || index >= count {
-            return Err(format!("'{s}': the index must be in 0..n"));
-        }
-        Ok(Self { index, count })
     }
 }
 
@@ -480,7 +464,17 @@ pub fn run(
                 progress(n, total_samples);
                 Ok((token.clone(), d))
             })
-            .collect::<Result<_, SweepError>>()?;
+            .collect::<Result<_, SweepError>>()
+            .map_err(|e| SweepError::Group {
+                alpha,
+                trial,
+                units: pending
+                    .iter()
+                    .map(|u| u.case.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                source: Box::new(e),
+            })?;
         for u in &pending {
             let dets: HashMap<String, Vec<Detection>> = per_sample
                 .iter()

@@ -3,6 +3,11 @@
 
 use std::process::Command;
 
+#[path = "cli/cluster.rs"]
+mod cluster;
+#[path = "cli/external.rs"]
+mod external;
+
 fn mlod(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_mlod"))
         .args(args)

@@ -28,6 +28,9 @@ use mlod::refine::train::{train_refiner, RefineTrainConfig};
 use mlod::session::Session;
 use mlod::uncertainty::Perturbation;
 
+#[path = "gui_app/external.rs"]
+mod external;
+
 fn harness(session: Option<Session>) -> Harness<'static, MlodApp> {
     harness_with(session, None)
 }

@@ -39,11 +39,14 @@ pub struct DetectorRun {
     /// the threshold chosen on the validation scenes).
     #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
+    #[command(flatten)]
+    pub external: super::external::ExternalArgs,
 }
 
 impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
+        self.external.define_for(&[case])?;
         Ok(mlod::refine::load_detector_oc(
             &self.models_dir(),
             case,
@@ -75,6 +78,9 @@ pub struct DetectArgs {
     /// Sample token (default: the first sample in scene order).
     #[arg(long)]
     sample: Option<String>,
+    /// The case: top, left, right, input, feature, result, mlod-i, mlod-f, mlod-r, their (OC)
+    /// variants (input-oc, …, mlod-r-oc), input-drop, mlod-i-notrace, or an external detector
+    /// ext:NAME / mlod-ext:NAME (with --detector or --detectors; docs/external.md).
     #[arg(long)]
     case: Case,
     #[command(flatten)]

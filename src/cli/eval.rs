@@ -17,7 +17,8 @@ pub struct EvalArgs {
     /// size [w,l,h], rotation [w,x,y,z], name, score).
     #[arg(long, required_unless_present = "case", conflicts_with = "case")]
     pred: Option<PathBuf>,
-    /// Instead of --pred: run this stage-1 detector (shipped weights) over the samples.
+    /// Instead of --pred: run this case over the samples (a shipped detector, or ext:NAME /
+    /// mlod-ext:NAME with --detector; docs/external.md).
     #[arg(long)]
     case: Option<mlod::detect::Case>,
     // With --case: the perturbation and the models folder.
@@ -319,6 +320,7 @@ fn trials(
         let run = DetectorRun {
             seed,
             models: args.run.models.clone(),
+            external: args.run.external.clone(),
             ..args.run
         };
         let report = run_case(dataset, tokens, &run, case, &run.fuse_params()?, opts)?;

@@ -68,6 +68,7 @@ pub fn run(a: FailuresArgs) -> Result<()> {
             a.dataset.display()
         );
     }
+    a.run.external.define_for(&[a.case])?;
     let cfg = ScanConfig {
         case: a.case,
         params: a.run.fuse_params()?,

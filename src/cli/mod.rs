@@ -8,6 +8,7 @@ pub mod data;
 pub mod detect;
 pub mod eval;
 pub mod export;
+pub mod external;
 pub mod failures;
 pub mod refine;
 pub mod stats;

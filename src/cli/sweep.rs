@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use mlod::calib::OcPrior;
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
-use mlod::sweep::{self, Draw, Shard, SweepConfig};
+use mlod::sweep::{self, Draw, ShardSpec, SweepConfig};
 
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true)]
@@ -18,7 +18,8 @@ pub struct SweepArgs {
     /// Dataset root or its version folder (the held-out test split for Table II).
     #[arg(long)]
     pub dataset: Option<PathBuf>,
-    /// Cases, comma-separated (e.g. top,input,mlod-i,input-oc,mlod-i-oc).
+    /// Cases, comma-separated (e.g. top,input,mlod-i,input-oc,mlod-i-oc; ext:NAME and mlod-ext:NAME
+    /// with --detector, docs/external.md).
     #[arg(
         long,
         value_delimiter = ',',
@@ -59,8 +60,12 @@ pub struct SweepArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Run only the i-th of n shards (0-based), e.g. 0/4; unite them with `mlod sweep merge`.
+    /// `auto`: the index and count of a Slurm job array; `auto/N`: the index of a Kubernetes
+    /// Indexed Job with N completions (docs/cluster.md).
     #[arg(long, default_value = "0/1")]
-    pub shard: Shard,
+    pub shard: ShardSpec,
+    #[command(flatten)]
+    pub external: super::external::ExternalArgs,
 }
 
 #[derive(clap::Subcommand)]
@@ -89,6 +94,23 @@ pub fn run(args: SweepArgs) -> Result<()> {
     if args.samples == Some(0) {
         bail!("--samples must be at least 1");
     }
+    let (shard, shard_from) = args
+        .shard
+        .resolve(&|k| std::env::var(k).ok())
+        .map_err(anyhow::Error::msg)?;
+    if shard.count > 1 {
+        eprintln!("{shard_from}");
+    }
+    let specs = args.external.define_for(&args.cases)?;
+    let detectors = specs
+        .iter()
+        .filter(|s| {
+            args.cases
+                .iter()
+                .any(|c| c.external_name() == Some(s.name.as_str()))
+        })
+        .map(|s| (s.name.clone(), s.command_line()))
+        .collect();
     let cfg = SweepConfig {
         cases: args.cases.clone(),
         alphas: args.alphas.clone(),
@@ -103,6 +125,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         } else {
             None
         },
+        detectors,
     };
     cfg.validate()?;
     let models = args.models.clone().unwrap_or_else(default_models_dir);
@@ -113,7 +136,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let n = sweep::run(&dataset, &models, &cfg, out, args.shard, None, &|done, total| {
+    let n = sweep::run(&dataset, &models, &cfg, out, shard, None, &|done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })

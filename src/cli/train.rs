@@ -251,6 +251,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
             vote_iou: voting,
             oc_prior: Default::default(),
             drop_trace: mlod::detect::drop::DROP_TRACE,
+            external: Default::default(),
         };
         let mut per_case = BTreeMap::new();
         for &case in &cases {

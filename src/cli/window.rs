@@ -23,6 +23,8 @@ pub struct GuiArgs {
     /// frame times while each is in flight and the time from Run to the boxes on screen.
     #[arg(long, requires = "measure_frames")]
     measure_run: bool,
+    #[command(flatten)]
+    external: super::external::ExternalArgs,
 }
 
 #[derive(clap::Args)]
@@ -36,6 +38,8 @@ pub struct ScreenshotArgs {
     /// WIDTHxHEIGHT in pixels.
     #[arg(long, default_value = "1280x800")]
     size: String,
+    #[command(flatten)]
+    external: super::external::ExternalArgs,
 }
 
 #[derive(clap::Args)]
@@ -60,6 +64,8 @@ pub struct ClipArgs {
     /// The GIF to write (atomically).
     #[arg(long)]
     out: PathBuf,
+    #[command(flatten)]
+    external: super::external::ExternalArgs,
 }
 
 /// WIDTHxHEIGHT with sides in 16..=8192.
@@ -79,7 +85,7 @@ pub fn clip(args: ClipArgs) -> Result<()> {
         fps: args.fps,
     };
     clip.validate()?;
-    let options = app_options(args.dataset, args.session)?;
+    let options = app_options(args.dataset, args.session, &args.external, true)?;
     let start = std::time::Instant::now();
     let frames = mlod::gui::clip::render_clip(options, &clip, &|done, total| {
         eprint!("\rframe {done}/{total}");
@@ -102,9 +108,36 @@ pub fn clip(_: ClipArgs) -> Result<()> {
     bail!("this build has no GUI (built without the `gui` feature)")
 }
 
+/// The window's options: the session (its dataset unless `dataset` is given) and the external
+/// detectors the command line defines, which replace the session's of the same name (the user
+/// typed them). `headless` (clip, screenshot): nobody can be asked, so a session's external case
+/// must be named on the command line.
 #[cfg(feature = "gui")]
-fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlod::gui::AppOptions> {
-    let session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
+fn app_options(
+    dataset: Option<PathBuf>,
+    session: Option<PathBuf>,
+    external: &super::external::ExternalArgs,
+    headless: bool,
+) -> Result<mlod::gui::AppOptions> {
+    let specs = external.define()?;
+    let mut session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
+    if let Some(s) = session.as_mut() {
+        for spec in &specs {
+            s.external.retain(|e| e.name != spec.name);
+            s.external.push(spec.clone());
+        }
+        let cases = [Some(s.detection.case), s.compare];
+        for case in cases.into_iter().flatten() {
+            if let Some(name) = case
+                .external_name()
+                .filter(|n| headless && !specs.iter().any(|e| e.name == *n))
+            {
+                anyhow::bail!(
+                    "the session's case {case} runs the external detector '{name}': the command line runs only detectors it names: give --detector {name}=COMMAND or --detectors FILE"
+                );
+            }
+        }
+    }
     let dataset = dataset
         .or_else(|| session.as_ref().map(|s| s.dataset.clone()))
         .unwrap_or_else(mlod::gui::default_dataset);
@@ -124,7 +157,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
 
 #[cfg(feature = "gui")]
 pub fn gui(args: GuiArgs) -> Result<()> {
-    let mut options = app_options(args.dataset, args.session)?;
+    let mut options = app_options(args.dataset, args.session, &args.external, false)?;
     options.measure_frames = args.measure_frames.filter(|n| *n > 0);
     options.measure_run = args.measure_run;
     mlod::gui::run(options).context("the debugger window failed")
@@ -133,7 +166,7 @@ pub fn gui(args: GuiArgs) -> Result<()> {
 #[cfg(feature = "gui")]
 pub fn screenshot(args: ScreenshotArgs) -> Result<()> {
     let (w, h) = parse_size(&args.size)?;
-    let options = app_options(args.dataset, args.session)?;
+    let options = app_options(args.dataset, args.session, &args.external, true)?;
     let img = mlod::gui::screenshot(options, (w, h))?;
     mlod::gui::write_png(&args.out, &img)?;
     eprintln!("wrote {}", args.out.display());

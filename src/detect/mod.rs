@@ -24,6 +24,7 @@ pub mod calibrate;
 pub mod checkpoint;
 pub mod config;
 pub mod drop;
+pub mod external;
 pub mod fastconv;
 pub mod gt_sampling;
 pub mod infer;
@@ -49,10 +50,10 @@ pub use model::{ModelConfig, ResultFusion, Stage1Model};
 pub use weights::{Manifest, ModelEntry};
 
 /// The stage-1 cases of the paper (§V-A-4).
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, clap::ValueEnum,
-)]
-#[serde(rename_all = "lowercase")]
+///
+/// Written as its lowercase name ([`Case::as_str`]) on the command line, in JSON and in file
+/// names; `ext:NAME` and `mlod-ext:NAME` name a detector in another process ([`external`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Case {
     /// LiDAR-Top: the primary LiDAR alone.
     Top,
@@ -67,43 +68,37 @@ pub enum Case {
     /// Result Fusion: the three single-LiDAR detectors, calibrated, merged by 3D NMS.
     Result,
     /// MLOD-I: Input Fusion's proposals refined by the stage-2 network (`crate::refine`).
-    #[serde(rename = "mlod-i")]
     MlodI,
     /// MLOD-F: Feature Fusion + the refiner.
-    #[serde(rename = "mlod-f")]
     MlodF,
     /// MLOD-R: Result Fusion + the refiner.
-    #[serde(rename = "mlod-r")]
     MlodR,
     /// Input Fusion (OC): online calibration (point-to-plane ICP, `crate::calib`) first, then
     /// Input Fusion on the corrected cloud.
-    #[serde(rename = "input-oc")]
     InputOc,
     /// Feature Fusion (OC).
-    #[serde(rename = "feature-oc")]
     FeatureOc,
     /// Result Fusion (OC).
-    #[serde(rename = "result-oc")]
     ResultOc,
     /// MLOD-I (OC): online calibration, then MLOD-I.
-    #[serde(rename = "mlod-i-oc")]
     MlodIOc,
     /// MLOD-F (OC).
-    #[serde(rename = "mlod-f-oc")]
     MlodFOc,
     /// MLOD-R (OC).
-    #[serde(rename = "mlod-r-oc")]
     MlodROc,
     /// The "straightforward idea" of §IV-B, an ablation: Input Fusion on the fused cloud without
     /// its uncertain points (tr(Ξ) above a threshold chosen on the validation scenes, `drop`).
-    #[serde(rename = "input-drop")]
     InputDrop,
     /// An ablation: MLOD-I with a refiner trained identically (same data, seed and steps) but
     /// without the tr(Ξ) point feature (`mlod train refiner --no-trace`): what the uncertainty
     /// channel itself brings.
-    #[serde(rename = "mlod-i-notrace")]
-    #[value(name = "mlod-i-notrace")]
     MlodINoTrace,
+    /// `ext:NAME`: the detector NAME, served by another process over `mlod-detector/1`
+    /// ([`external`]). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
+    Ext(&'static str),
+    /// `mlod-ext:NAME`: the shipped refiner on the proposals of the external detector NAME (holds
+    /// `mlod-ext:NAME`, interned).
+    MlodExt(&'static str),
 }
 
 impl Case {
@@ -174,6 +169,7 @@ impl Case {
             Case::MlodIOc => Case::InputOc,
             Case::MlodFOc => Case::FeatureOc,
             Case::MlodROc => Case::ResultOc,
+            Case::MlodExt(_) => external::ext_case(self.external_name().unwrap_or_default()),
             c => c,
         }
     }
@@ -187,13 +183,25 @@ impl Case {
             Case::InputOc => Some(Case::MlodIOc),
             Case::FeatureOc => Some(Case::MlodFOc),
             Case::ResultOc => Some(Case::MlodROc),
+            Case::Ext(_) => self.external_name().map(external::mlod_ext_case),
             _ => None,
         }
     }
 
     /// Whether this case runs the stage-2 refiner.
     pub fn is_mlod(self) -> bool {
-        Case::MLOD.contains(&self.without_oc()) || self == Case::MlodINoTrace
+        Case::MLOD.contains(&self.without_oc())
+            || self == Case::MlodINoTrace
+            || matches!(self, Case::MlodExt(_))
+    }
+
+    /// The external detector's name of an `ext:NAME` or `mlod-ext:NAME` case.
+    pub fn external_name(self) -> Option<&'static str> {
+        match self {
+            Case::Ext(s) => s.strip_prefix(external::EXT_PREFIX),
+            Case::MlodExt(s) => s.strip_prefix(external::MLOD_EXT_PREFIX),
+            _ => None,
+        }
     }
 
     /// Whether this MLOD case's refiner sees tr(Ξ) (all but the ablation [`Case::MlodINoTrace`],
@@ -245,6 +253,7 @@ impl Case {
             Case::MlodROc => "mlod-r-oc",
             Case::InputDrop => "input-drop",
             Case::MlodINoTrace => "mlod-i-notrace",
+            Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
 
@@ -268,6 +277,7 @@ impl Case {
             Case::MlodROc => "MLOD-R (OC)",
             Case::InputDrop => "Input Fusion, uncertain points dropped",
             Case::MlodINoTrace => "MLOD-I without tr(Ξ)",
+            Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
 
@@ -347,6 +357,40 @@ impl std::fmt::Display for Case {
     }
 }
 
+impl std::str::FromStr for Case {
+    type Err = String;
+
+    /// A case by its name: one of [`Case::WITH_OC`], `ext:NAME` or `mlod-ext:NAME`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        if let Some(c) = Case::WITH_OC.into_iter().find(|c| c.as_str() == s) {
+            return Ok(c);
+        }
+        if let Some(name) = s.strip_prefix(external::EXT_PREFIX) {
+            return external::check_name(name).map(|()| external::ext_case(name));
+        }
+        if let Some(name) = s.strip_prefix(external::MLOD_EXT_PREFIX) {
+            return external::check_name(name).map(|()| external::mlod_ext_case(name));
+        }
+        let names = Case::WITH_OC.map(|c| c.as_str()).join(", ");
+        Err(format!(
+            "'{s}' is not a case: one of {names}, ext:NAME (an external detector) or mlod-ext:NAME"
+        ))
+    }
+}
+
+impl Serialize for Case {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Case {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 /// Errors of the detectors.
 #[derive(Debug, thiserror::Error)]
 pub enum DetectError {
@@ -381,6 +425,8 @@ pub enum DetectError {
     Lyft(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
+    #[error(transparent)]
+    External(#[from] external::ExternalError),
 }
 
 /// One entry point for every stage-1 case.

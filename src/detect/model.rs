@@ -482,7 +482,8 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
         )));
     }
     Ok(match case {
-        Case::MlodI | Case::MlodF | Case::MlodR | Case::MlodINoTrace => {
+        Case::Ext(_) => Box::new(crate::detect::external::load(case)?),
+        Case::MlodI | Case::MlodF | Case::MlodR | Case::MlodINoTrace | Case::MlodExt(_) => {
             return Err(DetectError::BadParameter(format!(
                 "{} needs the stage-2 refiner: load it with mlod::refine::load_detector",
                 case.paper_name()

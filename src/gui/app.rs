@@ -7,6 +7,7 @@ mod calibration;
 mod compare;
 mod demo;
 mod detection;
+mod external;
 mod failures;
 mod measure;
 mod scene;
@@ -103,6 +104,10 @@ pub struct MlodApp {
     /// A dataset opened without a session: its first sample picks the default case (LiDAR-Top
     /// on a LIDAR_TOP-only sample).
     case_from_data: bool,
+    /// Consents to run a session's external detectors, and the question pending (`gui::consent`).
+    consent: crate::gui::consent::Consent,
+    /// Why an external case could not run, shown as a toast at the next frame.
+    consent_notice: Option<String>,
 }
 
 impl MlodApp {
@@ -115,8 +120,13 @@ impl MlodApp {
             .storage
             .and_then(|s| eframe::get_value::<Vec<PathBuf>>(s, RECENT_KEY))
             .unwrap_or_default();
+        let consents = cc
+            .storage
+            .and_then(|s| eframe::get_value::<Vec<String>>(s, crate::gui::consent::CONSENT_KEY))
+            .unwrap_or_default();
         let mut app = Self::headless(options, Some(cc.egui_ctx.clone()));
         app.shell.recent = recent;
+        app.consent.granted = consents.into_iter().collect();
         app
     }
 
@@ -177,6 +187,8 @@ impl MlodApp {
             focus_pending: false,
             scan_on_load: false,
             case_from_data: false,
+            consent: Default::default(),
+            consent_notice: None,
             session,
         };
         let path = app.session.dataset.clone();
@@ -465,6 +477,7 @@ impl MlodApp {
         s.failures = self.shell.failures.as_ref().map(|b| b.scope);
         s.camera = Some(pose_from_camera(&self.view.camera));
         s.point_size = self.view.settings.point_size;
+        crate::gui::consent::store_definitions(&mut s);
         s
     }
 
@@ -759,6 +772,7 @@ impl eframe::App for MlodApp {
             .show(ui, |ui| panels::controls(&mut p, ui));
         let actions = std::mem::take(&mut p.actions);
         self.apply_actions(actions, now, Some(frame));
+        self.consent_window(&ctx, now);
         if self.needs_fuse {
             self.refuse(now);
         } else if self.needs_color {
@@ -782,5 +796,6 @@ impl eframe::App for MlodApp {
 
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
         eframe::set_value(storage, RECENT_KEY, &self.shell.recent);
+        eframe::set_value(storage, crate::gui::consent::CONSENT_KEY, &self.consents());
     }
 }

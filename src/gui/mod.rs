@@ -6,6 +6,7 @@
 
 pub mod app;
 pub mod clip;
+mod consent;
 mod jobs;
 mod overlay;
 mod panels;

@@ -27,6 +27,7 @@ fn config() -> SweepConfig {
         samples: spread_samples(&all, Some(2)),
         assumed_alpha: None,
         drop_trace: Some(0.1),
+        detectors: Default::default(),
     }
 }
 

@@ -62,6 +62,9 @@ impl MlodApp {
             self.compare_again = true;
             return;
         }
+        if !self.may_run(case) {
+            return;
+        }
         self.loaded.detecting_b = true;
         let request = self.detect_request(frame, case, true);
         self.jobs.detect(request);

@@ -30,6 +30,9 @@ impl MlodApp {
             return;
         }
         let case = self.session.detection.case;
+        if !self.may_run(case) {
+            return;
+        }
         // The cloud on screen is the one the case sees: an (OC) case the corrected cloud (after
         // calibrating, if there is no calibration yet), any other case the drifted one.
         if case.is_oc() {

@@ -17,12 +17,13 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     let mut run = false;
     let mut rematch = false;
     let mut redraw = false;
+    let external = crate::gui::consent::external_cases(p.session);
     ui.horizontal(|ui| {
         let d = &mut p.session.detection;
         egui::ComboBox::new("mlod_detector_case", "case")
             .selected_text(d.case.paper_name())
             .show_ui(ui, |ui| {
-                for c in Case::WITH_OC {
+                for c in Case::WITH_OC.into_iter().chain(external) {
                     ui.selectable_value(&mut d.case, c, c.paper_name());
                 }
             });
