@@ -104,6 +104,7 @@ pub fn clip(_: ClipArgs) -> Result<()> {
 
 #[cfg(feature = "gui")]
 fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlod::gui::AppOptions> {
+    let session_file = session.clone();
     let session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
     let dataset = dataset
         .or_else(|| session.as_ref().map(|s| s.dataset.clone()))
@@ -119,6 +120,7 @@ fn app_options(dataset: Option<PathBuf>, session: Option<PathBuf>) -> Result<mlo
         measure_frames: None,
         measure_run: false,
         models: None,
+        session_file,
     })
 }
 
