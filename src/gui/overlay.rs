@@ -45,7 +45,8 @@ pub fn annotate(
 ) {
     let painter = painter.with_clip_rect(rect);
     for l in labels {
-        let Some(pos) = camera.project(l.at, rect) else {
+        // A label whose point is out of view is left out rather than pinned to an edge.
+        let Some(pos) = camera.project(l.at, rect).filter(|p| rect.contains(*p)) else {
             continue;
         };
         let galley = painter.layout_no_wrap(l.text.clone(), egui::FontId::proportional(13.0), l.color);
