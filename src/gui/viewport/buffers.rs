@@ -3,7 +3,6 @@
 
 use egui_wgpu::wgpu;
 
-use super::renderer::PointSource;
 use super::SceneHandle;
 
 /// A GPU buffer that grows on demand (to the next power of two) and is rewritten in place.
@@ -73,10 +72,11 @@ pub(crate) struct SceneBuffers {
 }
 
 impl SceneBuffers {
-    pub(crate) fn new(source: PointSource) -> Self {
+    /// `point_usage`: how the point buffers are bound (storage or vertex buffers).
+    pub(crate) fn new(point_usage: wgpu::BufferUsages) -> Self {
         Self {
-            positions: GrowBuffer::new("mlod viewport positions", source.buffer_usage()),
-            colors: GrowBuffer::new("mlod viewport colours", source.buffer_usage()),
+            positions: GrowBuffer::new("mlod viewport positions", point_usage),
+            colors: GrowBuffer::new("mlod viewport colours", point_usage),
             lines: GrowBuffer::new("mlod viewport lines", wgpu::BufferUsages::VERTEX),
             points_bind_group: None,
             uploaded: [0; 3],

@@ -548,7 +548,7 @@ impl SceneRenderer {
         let buffers = self
             .scenes
             .entry(scene.id())
-            .or_insert_with(|| SceneBuffers::new(source));
+            .or_insert_with(|| SceneBuffers::new(source.buffer_usage()));
         buffers.sync(device, queue, self.points_layout.as_ref(), self.max_points, scene);
 
         self.frame += 1;
