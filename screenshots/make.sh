@@ -6,14 +6,16 @@
 # pointer out of the way.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release
+# MLOD_BIN=path uses that binary instead of building the release one.
+bin="${MLOD_BIN:-target/release/mlod}"
+[ -n "${MLOD_BIN:-}" ] || cargo build --release
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 for s in screenshots/*.session.json; do
   name=$(basename "$s" .session.json)
   xvfb-run -a -s "-screen 0 1280x800x24" sh -c "
-    target/release/mlod gui --session '$s' >/dev/null 2>&1 &
+    $bin gui --session '$s' >/dev/null 2>&1 &
     pid=\$!
-    sleep 10   # the failure browser scans the scene on load
+    sleep \${MLOD_SHOT_WAIT:-10}   # the failure browser scans the scene on load
     command -v xdotool >/dev/null && xdotool mousemove 1275 795 && sleep 1   # no hover tooltip
     import -window root 'screenshots/$name.png'
     kill \$pid"

@@ -1,8 +1,14 @@
-//! Point colouring for the viewport and the CLI's PNGs: the paper's per-LiDAR colours (top blue,
-//! front-left green, front-right red, Fig. 1), height, intensity, and tr(Ξ) through the turbo
-//! colormap (blue = certain to red = uncertain, as in Fig. 4), on a linear or log scale, with an
-//! optional highlight of the paper's uncertain points (tr Ξ > 0.05). Also the histogram and the
-//! legend ticks the GUI draws. Pure functions over slices, parallel for whole clouds.
+//! Point colouring for the viewport and the CLI's PNGs: per-LiDAR colours, height, intensity, and
+//! tr(Ξ) through a sequential ramp (dim grey = certain to pale pink = uncertain), on a linear or
+//! log scale, with an optional highlight of the paper's uncertain points (tr Ξ > 0.05). Also the
+//! histogram and the legend ticks the GUI draws. Pure functions over slices, parallel for whole
+//! clouds.
+//!
+//! The point palettes never use the box colours — blue (proposals), red (refined), green
+//! (ground truth) and amber (selected) — so that a box stays visible over any point: the
+//! standard palette keeps to greys, violet, magenta, pink and teal (the paper's blue / green /
+//! red LiDARs and turbo's blue-green-red would hide the boxes), and the colour-blind-safe one
+//! to greys only, leaving hue to the boxes alone.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -12,8 +18,68 @@ use crate::pipeline::FusedCloud;
 /// An RGBA colour, 8 bits per channel.
 pub type Rgba = [u8; 4];
 
-/// The paper's LiDAR colours: top blue, front-left green, front-right red.
-pub const LIDAR_COLORS: [Rgba; 3] = [[66, 135, 245, 255], [60, 200, 90, 255], [235, 70, 60, 255]];
+/// The LiDAR colours of the standard palette: top warm light grey, front-left orchid, front-right teal
+/// (the paper's blue / green / red are the box colours here).
+pub const LIDAR_COLORS: [Rgba; 3] = [[185, 185, 170, 255], [210, 110, 220, 255], [60, 195, 200, 255]];
+
+/// The LiDAR colours of the colour-blind-safe palette: three lightnesses of grey.
+pub const LIDAR_GREYS: [Rgba; 3] = [[225, 225, 225, 255], [150, 150, 150, 255], [100, 100, 100, 255]];
+
+/// The point palette. Both keep off the box colours (blue, red, green, amber).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Palette {
+    /// Greys, orchid and teal for the LiDARs; grey → violet → magenta → pale pink for scalars.
+    #[default]
+    Standard,
+    /// Greys only (lightness carries the value): safe for every kind of colour vision, and the
+    /// boxes are the only hues on screen.
+    ColorBlind,
+}
+
+impl Palette {
+    pub const ALL: [Palette; 2] = [Palette::Standard, Palette::ColorBlind];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Palette::Standard => "standard",
+            Palette::ColorBlind => "colour-blind safe (greys)",
+        }
+    }
+
+    /// The colour of a point of LiDAR `source` (0 top, 1 front-left, 2 front-right).
+    pub fn lidar(self, source: usize) -> Rgba {
+        let table = match self {
+            Palette::Standard => &LIDAR_COLORS,
+            Palette::ColorBlind => &LIDAR_GREYS,
+        };
+        table.get(source).copied().unwrap_or([200, 200, 200, 255])
+    }
+
+    /// The colour of a scalar at position `t` in [0, 1] of its range.
+    pub fn ramp(self, t: f32) -> Rgba {
+        let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+        let stops: &[(f32, [f32; 3])] = match self {
+            Palette::Standard => &[
+                (0.0, [95.0, 98.0, 115.0]),
+                (0.35, [125.0, 82.0, 170.0]),
+                (0.7, [210.0, 80.0, 180.0]),
+                (1.0, [255.0, 195.0, 240.0]),
+            ],
+            Palette::ColorBlind => &[(0.0, [80.0, 80.0, 84.0]), (1.0, [245.0, 245.0, 245.0])],
+        };
+        let k = stops
+            .iter()
+            .position(|s| s.0 >= t)
+            .unwrap_or(stops.len() - 1)
+            .max(1);
+        let (t0, c0) = stops[k - 1];
+        let (t1, c1) = stops[k];
+        let f = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+        let q = |i: usize| (c0[i] + (c1[i] - c0[i]) * f).round().clamp(0.0, 255.0) as u8;
+        [q(0), q(1), q(2), 255]
+    }
+}
 
 /// What the colour of a point shows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
@@ -74,8 +140,11 @@ pub struct ColorParams {
     pub scale: Scale,
     /// The mapped range; values outside are clamped. Ignored for `Source`.
     pub range: (f32, f32),
-    /// Draw points with tr(Ξ) above this threshold in magenta (None: off).
+    /// Draw points with tr(Ξ) above this threshold in [`HIGHLIGHT`] (None: off).
     pub highlight_above: Option<f32>,
+    /// The point palette (sessions written before it existed: the standard one).
+    #[serde(default)]
+    pub palette: Palette,
 }
 
 impl Default for ColorParams {
@@ -85,12 +154,13 @@ impl Default for ColorParams {
             scale: Scale::Log,
             range: (1e-3, 1.0),
             highlight_above: None,
+            palette: Palette::Standard,
         }
     }
 }
 
-/// The highlight colour for uncertain points.
-pub const HIGHLIGHT: Rgba = [255, 0, 220, 255];
+/// The highlight colour for uncertain points: cyan, in neither palette nor a box colour.
+pub const HIGHLIGHT: Rgba = [0, 235, 235, 255];
 
 /// Turbo (Mikhailov 2019, polynomial approximation), t in [0, 1]. The darkest 10 % of turbo is
 /// skipped so that the lowest values — most points — stay a readable blue on a dark background.
@@ -135,6 +205,37 @@ pub fn turbo(t: f32) -> Rgba {
     [q(r), q(g), q(b), 255]
 }
 
+/// CIE L*a*b* (D65 white) of an sRGB colour (alpha ignored).
+pub fn lab(c: Rgba) -> [f32; 3] {
+    let lin = |v: u8| {
+        let v = f32::from(v) / 255.0;
+        if v <= 0.04045 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let (r, g, b) = (lin(c[0]), lin(c[1]), lin(c[2]));
+    let x = (0.4124 * r + 0.3576 * g + 0.1805 * b) / 0.95047;
+    let y = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    let z = (0.0193 * r + 0.1192 * g + 0.9505 * b) / 1.08883;
+    let f = |t: f32| {
+        if t > 0.008856 {
+            t.cbrt()
+        } else {
+            7.787 * t + 16.0 / 116.0
+        }
+    };
+    [116.0 * f(y) - 16.0, 500.0 * (f(x) - f(y)), 200.0 * (f(y) - f(z))]
+}
+
+/// CIE76 colour difference of two sRGB colours: about 2.3 is just noticeable, 20 and more reads
+/// as another colour. How the GUI tests that boxes stand out from the points.
+pub fn delta_e(a: Rgba, b: Rgba) -> f32 {
+    let (p, q) = (lab(a), lab(b));
+    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+}
+
 /// The position in [0, 1] of value `v` in `range` on `scale` (log needs a positive range).
 pub fn normalize(v: f32, range: (f32, f32), scale: Scale) -> f32 {
     let (lo, hi) = range;
@@ -162,16 +263,16 @@ pub fn scalars(cloud: &FusedCloud, mode: ColorMode) -> &[f32] {
     }
 }
 
-/// [`turbo`] sampled at 1024 steps: the per-point path looks colours up instead of evaluating
-/// three polynomials (the steps are finer than 8-bit colour can show).
-fn turbo_lut() -> &'static [Rgba; 1024] {
-    static LUT: std::sync::OnceLock<[Rgba; 1024]> = std::sync::OnceLock::new();
-    LUT.get_or_init(|| std::array::from_fn(|i| turbo(i as f32 / 1023.0)))
+/// A palette's ramp sampled at 1024 steps (the per-point path looks colours up).
+fn ramp_lut(palette: Palette) -> &'static [Rgba; 1024] {
+    static LUTS: [std::sync::OnceLock<[Rgba; 1024]>; 2] =
+        [std::sync::OnceLock::new(), std::sync::OnceLock::new()];
+    LUTS[palette as usize].get_or_init(|| std::array::from_fn(|i| palette.ramp(i as f32 / 1023.0)))
 }
 
 /// The colour of every point.
 pub fn colorize(cloud: &FusedCloud, params: &ColorParams) -> Vec<Rgba> {
-    let lut = turbo_lut();
+    let lut = ramp_lut(params.palette);
     let n = cloud.len();
     let mut out = vec![[0u8; 4]; n];
     let values = scalars(cloud, params.mode);
@@ -182,7 +283,7 @@ pub fn colorize(cloud: &FusedCloud, params: &ColorParams) -> Vec<Rgba> {
             *o = match params.mode {
                 ColorMode::Source => {
                     let s = cloud.source.get(k).copied().unwrap_or(0) as usize;
-                    LIDAR_COLORS.get(s).copied().unwrap_or([200, 200, 200, 255])
+                    params.palette.lidar(s)
                 }
                 _ => {
                     let t = normalize(values.get(k).copied().unwrap_or(0.0), params.range, params.scale);
@@ -316,6 +417,38 @@ mod tests {
     }
 
     #[test]
+    fn no_point_colour_is_near_a_box_colour() {
+        // The GUI's box colours: proposal blue, refined red, ground-truth green, selected amber
+        // (ΔE ≥ 25), and the greyed blue and red of false positives (ΔE ≥ 20).
+        let boxes = [
+            ([70, 150, 255, 255], 25.0),
+            ([235, 60, 60, 255], 25.0),
+            ([70, 230, 110, 255], 25.0),
+            ([255, 200, 40, 255], 25.0),
+            ([150, 160, 200, 255], 20.0),
+            ([200, 150, 150, 255], 20.0),
+        ];
+        for palette in Palette::ALL {
+            let points = (0..=100)
+                .map(|i| palette.ramp(i as f32 / 100.0))
+                .chain((0..3).map(|s| palette.lidar(s)))
+                .chain([HIGHLIGHT]);
+            for p in points {
+                for (b, min) in boxes {
+                    let d = delta_e(p, b);
+                    assert!(d >= min, "{palette:?}: point {p:?} vs box {b:?}: ΔE {d:.1}");
+                }
+            }
+        }
+        assert_eq!(Palette::Standard.ramp(f32::NAN), Palette::Standard.ramp(0.0));
+        let lum = |c: Rgba| u32::from(c[0]) + u32::from(c[1]) + u32::from(c[2]);
+        for palette in Palette::ALL {
+            let l: Vec<u32> = (0..=20).map(|i| lum(palette.ramp(i as f32 / 20.0))).collect();
+            assert!(l.first() < l.last(), "{palette:?} gets lighter with the value");
+        }
+    }
+
+    #[test]
     fn normalize_and_ticks() {
         assert_eq!(normalize(5.0, (0.0, 10.0), Scale::Linear), 0.5);
         assert!((normalize(0.01, (0.001, 0.1), Scale::Log) - 0.5).abs() < 1e-5);
@@ -339,9 +472,9 @@ mod tests {
 
     #[test]
     fn lookup_table_matches_the_colormap() {
-        let lut = turbo_lut();
+        let lut = ramp_lut(Palette::Standard);
         for i in [0usize, 1, 511, 1023] {
-            assert_eq!(lut[i], turbo(i as f32 / 1023.0));
+            assert_eq!(lut[i], Palette::Standard.ramp(i as f32 / 1023.0));
         }
         // Neighbouring entries differ by at most a few levels: the table is fine enough.
         let max_step = lut

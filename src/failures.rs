@@ -61,9 +61,21 @@ pub struct BoxFailure {
     /// Matched IoU of the object at α = 0 and now (0: not matched).
     pub iou_at_zero: Option<f64>,
     pub iou_now: Option<f64>,
+    /// Points of the perturbed cloud inside the box (the ground truth's, or the false positive's).
+    pub points: usize,
 }
 
 impl BoxFailure {
+    /// Distance of the box's centre from the base frame's origin on the ground (m).
+    pub fn range(&self) -> f64 {
+        self.center[0].hypot(self.center[1])
+    }
+
+    /// A miss that the perturbation alone caused: the object was detected at α = 0.
+    pub fn lost_by_perturbation(&self) -> bool {
+        self.kind == FailureKind::Missed && self.iou_at_zero.is_some_and(|v| v > 0.0)
+    }
+
     /// IoU at α = 0 minus IoU now (0 when not defined).
     pub fn iou_drop(&self) -> f64 {
         match (self.iou_at_zero, self.iou_now) {
@@ -164,6 +176,8 @@ fn scan_sample(
     let region = frame.eval_region.as_ref();
     let (now, fps) = outcomes(&now_dets, &gts, &rule, cfg.min_score, region);
     let (then, fps_zero) = outcomes(&zero_dets, &gts, &rule, cfg.min_score, region);
+    let cloud = crate::pipeline::fuse(&frame, &cfg.params)?;
+    let points = |b: &crate::geometry::Box3d| crate::pipeline::box_stats(&cloud, b).points;
     let mut missed = Vec::new();
     let mut drops = Vec::new();
     for (j, g) in gt_boxes.iter().enumerate() {
@@ -176,6 +190,7 @@ fn scan_sample(
             score: None,
             iou_at_zero: Some(then[j].unwrap_or(0.0)),
             iou_now: Some(now[j].unwrap_or(0.0)),
+            points: points(&g.box3d),
         };
         if now[j].is_none() {
             missed.push(f(FailureKind::Missed));
@@ -202,6 +217,7 @@ fn scan_sample(
             score: Some(now_dets[i].score),
             iou_at_zero: None,
             iou_now: None,
+            points: points(&now_dets[i].box3d),
         })
         .collect();
     Ok(SampleFailures {

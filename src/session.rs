@@ -57,6 +57,9 @@ pub struct Session {
     pub show_ground_truth: bool,
     /// Point size in UI points.
     pub point_size: f32,
+    /// Box line width in UI points (sessions written before it existed: 2.5).
+    #[serde(default = "default_line_width")]
+    pub line_width: f32,
     /// Detection settings (what the Detection panel shows).
     #[serde(default)]
     pub detection: DetectionSettings,
@@ -102,6 +105,10 @@ impl PartialEq for SessionSource {
     fn eq(&self, _: &Self) -> bool {
         true
     }
+}
+
+fn default_line_width() -> f32 {
+    2.5
 }
 
 /// Which samples the failure browser scans.
@@ -222,11 +229,12 @@ impl Session {
             fuse: FuseParams::default(),
             sampled: BTreeMap::new(),
             color: ColorParams::default(),
-            auto_range: false,
+            auto_range: true,
             camera: None,
             visible: BTreeMap::new(),
             show_ground_truth: true,
             point_size: 2.0,
+            line_width: default_line_width(),
             detection: DetectionSettings::default(),
             oc: OcSession::default(),
             selection: None,
@@ -298,6 +306,12 @@ impl Session {
         let (lo, hi) = self.color.range;
         if !(lo.is_finite() && hi.is_finite()) || hi < lo {
             return Err(bad("color.range", format!("[{lo}, {hi}]")));
+        }
+        if !self.line_width.is_finite() || !(0.5..=12.0).contains(&self.line_width) {
+            return Err(bad(
+                "line_width",
+                format!("{} (must be in 0.5..=12)", self.line_width),
+            ));
         }
         if !self.point_size.is_finite() || !(0.5..=50.0).contains(&self.point_size) {
             return Err(bad(

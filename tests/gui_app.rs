@@ -70,6 +70,7 @@ fn harness_full(
                     measure_frames: None,
                     measure_run: false,
                     models,
+                    session_file: None,
                 },
             )
         });
@@ -212,6 +213,7 @@ fn bad_dataset_keeps_the_window_up_with_an_error() {
                     measure_frames: None,
                     measure_run: false,
                     models: None,
+                    session_file: None,
                 },
             )
         });
@@ -1151,10 +1153,10 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
     assert_eq!((cb.true_positives, cb.false_positives, cb.missed), b_eval);
     // The difference, spelled out.
     let diff = format!(
-        "MLOD-I vs Input Fusion: {:+} TP, {:+} FP, {:+} missed",
-        b_eval.0 as i64 - a_eval.0 as i64,
-        b_eval.1 as i64 - a_eval.1 as i64,
-        b_eval.2 as i64 - a_eval.2 as i64
+        "Input Fusion vs MLOD-I: {:+} TP, {:+} FP, {:+} missed",
+        a_eval.0 as i64 - b_eval.0 as i64,
+        a_eval.1 as i64 - b_eval.1 as i64,
+        a_eval.2 as i64 - b_eval.2 as i64
     );
     assert!(h.query_by_label(&diff).is_some(), "{diff}");
     // Two halves: the refined (red) boxes only in the right one, the same camera.
@@ -1192,6 +1194,7 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
             measure_frames: None,
             measure_run: false,
             models: Some(models.clone()),
+            session_file: None,
         },
         (643, 400),
     )
@@ -1260,6 +1263,7 @@ fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
         measure_frames: None,
         measure_run: false,
         models: None,
+        session_file: None,
     };
     let clip = ClipOptions {
         alpha_to: 0.04,
@@ -1343,7 +1347,7 @@ fn the_failure_browser_lists_the_scenes_worst_samples_as_the_cli_does_and_goes_t
     s.fuse.perturbation.seed = 2;
     let mut h = harness(Some(s));
     h.get_by_label("failure cases…").click();
-    h.run_steps(2);
+    h.run_steps(4);
     h.get_by_label_contains("scan Input Fusion at α = 0.1").click();
     h.run_steps(3);
     let (case, alpha, seed, rows) = h
@@ -1682,3 +1686,6 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
         .is_disabled());
     assert_eq!(h3.state().session().detection.case, Case::Input);
 }
+
+#[path = "gui_app/visibility.rs"]
+mod visibility;

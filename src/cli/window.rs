@@ -120,6 +120,7 @@ fn app_options(
     headless: bool,
 ) -> Result<mlod::gui::AppOptions> {
     let specs = external.define()?;
+    let session_file = session.clone();
     let mut session = session.map(|p| mlod::session::Session::load(&p)).transpose()?;
     if let Some(s) = session.as_mut() {
         for spec in &specs {
@@ -152,6 +153,7 @@ fn app_options(
         measure_frames: None,
         measure_run: false,
         models: None,
+        session_file,
     })
 }
 

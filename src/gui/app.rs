@@ -3,6 +3,7 @@
 //! file only holds state, lays out widgets and hands data to the renderer. Running a detector,
 //! drawing its layers and highlighting active points live in [`detection`].
 
+mod actions;
 mod calibration;
 mod compare;
 mod demo;
@@ -23,7 +24,7 @@ use super::jobs::{JobResult, Jobs, LoadedDetector};
 use super::overlay::{self, OverlayInput};
 use super::panels::{self, Panels};
 use super::state::{camera_from_pose, pose_from_camera};
-use super::state::{Action, Loaded, Shell, Toast};
+use super::state::{Loaded, Shell, Toast};
 use super::viewport::{self, Camera, SceneHandle, View, Viewport};
 use crate::color::ColorMode;
 use crate::dataset::{Frame, LidarChannel};
@@ -51,9 +52,13 @@ pub struct AppOptions {
     /// Folder of the stage-1 weights and their manifest (default: `$MLOD_MODELS`, else the
     /// crate's `assets/models`).
     pub models: Option<PathBuf>,
+    /// The file `session` was read from (named in the window's title; Ctrl+S saves to it).
+    pub session_file: Option<PathBuf>,
 }
 
 const HISTOGRAM_BINS: usize = 64;
+/// The controls panel's width (UI points): wide enough for its widest row at 1280×800.
+const RIGHT_PANEL_WIDTH: f32 = 350.0;
 const RECENT_KEY: &str = "mlod_recent_datasets";
 
 /// The application.
@@ -142,6 +147,7 @@ impl MlodApp {
         let camera_from_session = session.camera.is_some();
         let mut view = Viewport::default();
         view.settings.point_size = session.point_size;
+        view.settings.line_width = session.line_width;
         if let Some(c) = session.camera {
             view.camera = camera_from_pose(&c);
         }
@@ -162,6 +168,9 @@ impl MlodApp {
             shell: Shell {
                 show_timings: !options.synchronous,
                 auto_color,
+                // Never a blocking native dialog in tests and headless runs.
+                native_dialogs: !options.synchronous && panels::dialog_service_available(),
+                session_file: options.session_file.clone(),
                 ..Default::default()
             },
             viewport_rect: egui::Rect::NOTHING,
@@ -477,6 +486,7 @@ impl MlodApp {
         s.failures = self.shell.failures.as_ref().map(|b| b.scope);
         s.camera = Some(pose_from_camera(&self.view.camera));
         s.point_size = self.view.settings.point_size;
+        s.line_width = self.view.settings.line_width;
         crate::gui::consent::store_definitions(&mut s);
         s
     }
@@ -486,6 +496,7 @@ impl MlodApp {
         self.view.camera = s.camera.map(|c| camera_from_pose(&c)).unwrap_or_default();
         self.camera_from_session = s.camera.is_some();
         self.view.settings.point_size = s.point_size;
+        self.view.settings.line_width = s.line_width;
         let same_dataset = self.loaded.dataset.is_some() && s.dataset == self.session.dataset;
         self.wanted_token = s.sample_token.clone();
         self.session = s;
@@ -551,101 +562,6 @@ impl MlodApp {
         (self.viewport_rect, self.hovered_box)
     }
 
-    /// Carries out what the panels asked for, in order. `frame` gives the GPU device for the PNG
-    /// export (none headlessly).
-    pub fn apply_actions(&mut self, actions: Vec<Action>, now: f64, frame: Option<&eframe::Frame>) {
-        for a in actions {
-            match a {
-                Action::OpenDataset(path) => self.open_dataset(path),
-                Action::SelectSample(token) => self.select_sample(&token),
-                Action::SaveSession(path) => match self.current_session().save(&path) {
-                    Ok(()) => self.toast(now, format!("saved {}", path.display()), false),
-                    Err(e) => self.toast(now, e.to_string(), true),
-                },
-                Action::LoadSession(path) => match Session::load(&path) {
-                    Ok(s) => self.apply_session(s),
-                    Err(e) => self.toast(now, e.to_string(), true),
-                },
-                Action::ExportPng(path) => {
-                    let result = match frame.and_then(|f| f.wgpu_render_state()) {
-                        Some(rs) => viewport::render_offscreen(
-                            &rs.device,
-                            &rs.queue,
-                            &self.scene,
-                            &self.view,
-                            (1280, 800),
-                        )
-                        .map_err(|e| e.to_string())
-                        .and_then(|img| super::write_png(&path, &img).map_err(|e| e.to_string())),
-                        None => Err("no GPU device to render with".to_string()),
-                    };
-                    match result {
-                        Ok(()) => self.toast(now, format!("wrote {}", path.display()), false),
-                        Err(e) => self.toast(now, e, true),
-                    }
-                }
-                Action::ExportCloud(path) => match self.export_cloud(&path) {
-                    Ok(n) => self.toast(now, format!("wrote {} ({n} points)", path.display()), false),
-                    Err(e) => self.toast(now, e, true),
-                },
-                Action::SetPreset(v) => self.set_preset(v),
-                Action::StepSample(d) => self.step_sample(d),
-                Action::Refuse => self.mark_fuse(),
-                Action::ClearSelection => self.select_box(None),
-                Action::CompareChanged => self.compare_changed(),
-                Action::TogglePlay(alpha_to) => {
-                    if self.shell.play.is_some() {
-                        self.shell.play = None;
-                    } else {
-                        self.start_play(alpha_to, super::clip::PLAY_FRAMES);
-                    }
-                }
-                Action::ExportClip(path) => self.export_clip(path, now),
-                Action::ToggleFailures => self.toggle_failures(),
-                Action::ScanFailures => self.scan_failures(now),
-                Action::CancelScan => self.cancel_scan(),
-                Action::GoToFailure(f) => self.go_to_failure(&f),
-                Action::OpenSweep(dir) => {
-                    if let Err(e) = self.open_sweep(&dir) {
-                        self.toast(now, format!("cannot open the sweep: {e}"), true);
-                    }
-                }
-                Action::FocusSelection => self.focus_selection(),
-                Action::Recolor => self.needs_color = true,
-                Action::RunDetector => self.run_detector(),
-                Action::Calibrate => self.calibrate(),
-                Action::CancelCalibration => self.cancel_calibration(now),
-                Action::Rematch => self.rematch(),
-                Action::RebuildLines => self.rebuild_lines(),
-            }
-        }
-    }
-
-    /// Writes the fused cloud on screen (all LiDARs, whatever is hidden) as PLY or PCD, by the
-    /// extension: what `mlod export` writes for the same sample and perturbation.
-    pub fn export_cloud(&self, path: &std::path::Path) -> Result<usize, String> {
-        let (Some(frame), Some(cloud)) = (self.loaded.frame.as_deref(), self.loaded.fused.as_ref()) else {
-            return Err("no sample on screen to export".into());
-        };
-        let format = crate::export::Format::from_path(path)
-            .ok_or_else(|| format!("{}: give the file a .ply or .pcd extension", path.display()))?;
-        let mut comment = crate::export::source_comment(
-            &self.session.dataset,
-            &frame.sample_token,
-            &self.session.fuse_params(),
-        );
-        if !self.session.fuse.manual.is_empty() {
-            comment.push_str(" (plus the window's manual offsets)");
-        }
-        let opts = crate::export::ExportOptions {
-            format,
-            covariance: None,
-            comment: &comment,
-        };
-        crate::export::write(path, cloud, &opts).map_err(|e| e.to_string())?;
-        Ok(cloud.len())
-    }
-
     /// The viewport (split in two in compare mode), the box under the pointer and its tooltip.
     fn central(&mut self, ui: &mut egui::Ui) {
         if self.compare_case().is_some() {
@@ -657,11 +573,14 @@ impl MlodApp {
 
     /// The main view: the session's case, with hover, tooltips and selection.
     fn central_main(&mut self, ui: &mut egui::Ui) {
+        let labels = self.scene_labels(true);
         let input = OverlayInput {
             loaded: &self.loaded,
             session: &self.session,
             scene_index: &self.scene_index,
             loading: self.jobs.running() > 0,
+            labels: &labels,
+            playing_alpha: self.shell.play.map(|_| self.session.fuse.perturbation.alpha),
         };
         let out = overlay::show(ui, &mut self.view, &self.scene, &input);
         self.viewport_rect = out.rect;
@@ -705,33 +624,37 @@ impl MlodApp {
     pub fn is_busy(&self) -> bool {
         self.jobs.running() > 0 || self.needs_fuse || self.loaded.detecting || self.loaded.detecting_b
     }
+}
 
-    fn handle_dropped_files(&mut self, ctx: &egui::Context) {
-        let dropped: Vec<PathBuf> = ctx.input(|i| {
-            i.raw
-                .dropped_files
-                .iter()
-                .map(|f| f.path().to_path_buf())
-                .filter(|p| !p.as_os_str().is_empty())
-                .collect()
-        });
-        if let Some(path) = dropped.into_iter().next() {
-            let path = if path.is_file() {
-                match path.file_name().and_then(|n| n.to_str()) {
-                    Some(n) if n.ends_with(".json") && path.parent().is_some() => {
-                        if let Ok(s) = Session::load(&path) {
-                            self.apply_session(s);
-                            return;
-                        }
-                        path.parent().map(PathBuf::from).unwrap_or(path)
-                    }
-                    _ => path,
-                }
-            } else {
-                path
-            };
-            self.open_dataset(path);
+impl MlodApp {
+    /// The window's title: the tool, and the session file once there is one.
+    fn update_title(&mut self, ctx: &egui::Context) {
+        let title = match self.shell.session_file.as_ref().and_then(|p| p.file_name()) {
+            Some(name) => format!("{} — {}", super::TITLE, name.to_string_lossy()),
+            None => super::TITLE.to_string(),
+        };
+        if self.shell.title != title {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Title(title.clone()));
+            self.shell.title = title;
         }
+    }
+
+    /// The messages on screen (toasts), oldest first.
+    pub fn toast_texts(&self) -> Vec<&str> {
+        self.shell.toasts.iter().map(|t| t.text.as_str()).collect()
+    }
+
+    /// The window title as last set.
+    pub fn title(&self) -> &str {
+        &self.shell.title
+    }
+
+    /// The controls panel's rectangle last frame (none while hidden), and how far its open
+    /// sections ran past its height (≤ 0: all in sight; else its scroll bar shows).
+    pub fn controls_layout(&self) -> Option<(egui::Rect, f32)> {
+        self.shell
+            .controls_rect
+            .map(|r| (r, self.shell.controls_overflow))
     }
 }
 
@@ -762,14 +685,23 @@ impl eframe::App for MlodApp {
         panels::menu_bar(&mut p, ui);
         panels::banner(&mut p, ui);
         panels::status_bar(&mut p, ui);
-        egui::Panel::left("samples")
-            .resizable(true)
-            .default_size(270.0)
-            .show(ui, |ui| panels::sample_browser(&mut p, ui));
-        egui::Panel::right("controls")
-            .resizable(true)
-            .default_size(330.0)
-            .show(ui, |ui| panels::controls(&mut p, ui));
+        // Tab hides the side panels (the viewport, or both compare halves, take the width).
+        if !p.shell.hide_panels {
+            egui::Panel::left("samples")
+                .resizable(true)
+                .default_size(230.0)
+                .show(ui, |ui| panels::sample_browser(&mut p, ui));
+            let right = egui::Panel::right("controls")
+                .resizable(true)
+                .default_size(RIGHT_PANEL_WIDTH)
+                .min_size(RIGHT_PANEL_WIDTH)
+                .show(ui, |ui| panels::controls(&mut p, ui));
+            p.shell.controls_rect = Some(right.response.rect);
+        } else {
+            p.shell.controls_rect = None;
+        }
+        // The failure browser docked under the viewport: it never covers what it finds.
+        panels::failure_panel(&mut p, ui);
         let actions = std::mem::take(&mut p.actions);
         self.apply_actions(actions, now, Some(frame));
         self.consent_window(&ctx, now);
@@ -781,10 +713,11 @@ impl eframe::App for MlodApp {
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)
             .show(ui, |ui| self.central(ui));
+        self.update_title(&ctx);
         let mut p = self.panels();
         panels::help_overlay(&mut p, &ctx);
         panels::sweep_window(&mut p, &ctx);
-        panels::failure_window(&mut p, &ctx);
+        panels::file_prompt(&mut p, &ctx);
         panels::toasts(&mut p, &ctx, now);
         let actions = std::mem::take(&mut p.actions);
         self.apply_actions(actions, now, Some(frame));

@@ -22,6 +22,7 @@ pub use app::{AppOptions, MlodApp};
 pub use state::{
     DetectionCounts, DetectionView, Refinement, SelectionDetails, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR,
     GT_COLOR, LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
+    SELECTED_HALO_COLOR,
 };
 
 /// The window title (screenshots find the window by it).

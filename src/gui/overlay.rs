@@ -21,6 +21,55 @@ pub struct OverlayInput<'a> {
     pub scene_index: &'a [u32],
     /// A load is running (the empty viewport says "loading…").
     pub loading: bool,
+    /// Text pinned to points of the scene (the selected box's label, the ego's "forward").
+    pub labels: &'a [SceneLabel],
+    /// α while "play α" runs, drawn large in the corner.
+    pub playing_alpha: Option<f64>,
+}
+
+/// A text pinned to a point of the scene, on a dark plate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneLabel {
+    pub at: [f32; 3],
+    pub text: String,
+    pub color: Color32,
+}
+
+/// Draws `labels` where their points project into `rect`, and α in the top-right corner.
+pub fn annotate(
+    painter: &egui::Painter,
+    rect: egui::Rect,
+    camera: &viewport::Camera,
+    labels: &[SceneLabel],
+    playing_alpha: Option<f64>,
+) {
+    let painter = painter.with_clip_rect(rect);
+    for l in labels {
+        // A label whose point is out of view is left out rather than pinned to an edge.
+        let Some(pos) = camera.project(l.at, rect).filter(|p| rect.contains(*p)) else {
+            continue;
+        };
+        let galley = painter.layout_no_wrap(l.text.clone(), egui::FontId::proportional(13.0), l.color);
+        let size = galley.size() + egui::vec2(10.0, 6.0);
+        // Above the point, kept inside the view.
+        let min = egui::pos2(
+            (pos.x - size.x / 2.0).clamp(rect.left() + 2.0, (rect.right() - size.x - 2.0).max(rect.left())),
+            (pos.y - size.y - 6.0).clamp(rect.top() + 2.0, (rect.bottom() - size.y - 2.0).max(rect.top())),
+        );
+        let plate = egui::Rect::from_min_size(min, size);
+        painter.rect_filled(plate, 3.0, Color32::from_black_alpha(200));
+        painter.galley(plate.min + egui::vec2(5.0, 3.0), galley, l.color);
+    }
+    if let Some(alpha) = playing_alpha {
+        let text = format!("α = {alpha:.3}");
+        let color = Color32::from_gray(240);
+        let galley = painter.layout_no_wrap(text, egui::FontId::proportional(22.0), color);
+        let size = galley.size() + egui::vec2(16.0, 8.0);
+        let plate =
+            egui::Rect::from_min_size(egui::pos2(rect.right() - size.x - 10.0, rect.top() + 10.0), size);
+        painter.rect_filled(plate, 4.0, Color32::from_black_alpha(200));
+        painter.galley(plate.min + egui::vec2(8.0, 4.0), galley, color);
+    }
 }
 
 /// What happened in the viewport this frame.
@@ -56,6 +105,13 @@ pub fn show(
     input: &OverlayInput<'_>,
 ) -> OverlayOutput {
     let out = viewport::show(ui, view, scene);
+    annotate(
+        ui.painter(),
+        out.response.rect,
+        &view.camera,
+        input.labels,
+        input.playing_alpha,
+    );
     let mut result = OverlayOutput {
         rect: out.response.rect,
         hovered_box: None,

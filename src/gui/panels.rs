@@ -6,29 +6,38 @@
 use std::path::PathBuf;
 
 use eframe::egui;
-use egui::{Color32, RichText, Sense, Stroke};
+use egui::{Color32, RichText};
 
 mod banner;
 mod calibration;
+mod coloring;
 mod detection;
 mod failures;
+mod files;
+mod help;
 mod selection;
 mod sweep;
 
 pub use banner::banner;
 use banner::NO_AUXILIARY;
-pub use failures::failure_window;
+pub use failures::failure_panel;
+pub use files::{dialog_service_available, file_prompt};
+pub use help::help_overlay;
 pub use sweep::sweep_window;
 
-use super::state::{channel_counts, color32, lidar_label, Action, Loaded, Shell, GT_COLOR};
-use super::viewport::{Projection, View, Viewport, CONTROLS_HELP};
-use crate::color::{normalize, ticks, turbo, ColorMode, Scale, HIGHLIGHT};
+use super::state::{channel_counts, lidar_label, Action, FilePurpose, Loaded, Shell};
+use super::viewport::{Projection, View, Viewport};
 use crate::dataset::LidarChannel;
 use crate::session::Session;
-use crate::uncertainty::{ExtrinsicNoise, Linearization, UNCERTAIN_TRACE};
+use crate::uncertainty::{ExtrinsicNoise, Linearization};
 
 /// The paper's perturbation levels (Table II).
 const ALPHA_MARKS: [f64; 4] = [0.0, 0.02, 0.04, 0.1];
+
+const SAVE_SHORTCUT: egui::KeyboardShortcut =
+    egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::S);
+const OPEN_SHORTCUT: egui::KeyboardShortcut =
+    egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::O);
 
 /// What the panels see and may edit, and the actions they ask for.
 pub struct Panels<'a> {
@@ -45,21 +54,32 @@ impl Panels<'_> {
     }
 }
 
-/// A file dialog's answer: a path to save to (with `name` as the suggested file name), or none.
-fn save_dialog(title: &str, filter: (&str, &[&str]), name: &str) -> Option<PathBuf> {
-    rfd::FileDialog::new()
-        .set_title(title)
-        .add_filter(filter.0, filter.1)
-        .set_file_name(name)
-        .save_file()
-}
-
 /// The keyboard shortcuts (when no text field has the focus): D runs the detector, ←/→ step
-/// through the samples, B toggles bird's eye, F points the camera at the selected box, F1 or ?
-/// the help, Esc closes it (or cancels a calibration, or clears the selection).
+/// through the samples, B toggles bird's eye, F points the camera at the selected box, Tab hides
+/// the side panels, Ctrl+S saves the session (to its file, once it has one), Ctrl+O opens a
+/// dataset, F1 or ? the help, Esc closes it (or cancels a calibration, or clears the selection).
 pub fn keys(p: &mut Panels<'_>, ctx: &egui::Context) {
-    if ctx.egui_wants_keyboard_input() {
+    if ctx.egui_wants_keyboard_input() || p.shell.prompt.is_some() {
         return;
+    }
+    let (save, open, tab) = ctx.input_mut(|i| {
+        (
+            i.consume_shortcut(&SAVE_SHORTCUT),
+            i.consume_shortcut(&OPEN_SHORTCUT),
+            i.consume_key(egui::Modifiers::NONE, egui::Key::Tab),
+        )
+    });
+    if save {
+        match p.shell.session_file.clone() {
+            Some(path) => p.act(Action::SaveSession(path)),
+            None => files::ask(p, FilePurpose::SaveSession),
+        }
+    }
+    if open {
+        files::ask(p, FilePurpose::OpenDataset);
+    }
+    if tab {
+        p.shell.hide_panels = !p.shell.hide_panels;
     }
     let (detect, left, right, help, esc, bev, focus) = ctx.input(|i| {
         (
@@ -115,13 +135,11 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     egui::Panel::top("menu").show(ui, |ui| {
         egui::MenuBar::new().ui(ui, |ui| {
             ui.menu_button("File", |ui| {
-                if ui.button("Open dataset…").clicked() {
-                    if let Some(dir) = rfd::FileDialog::new()
-                        .set_title("Open a Lyft-format dataset")
-                        .pick_folder()
-                    {
-                        p.act(Action::OpenDataset(dir));
-                    }
+                let shortcut = |ui: &egui::Ui, s: &egui::KeyboardShortcut| ui.ctx().format_shortcut(s);
+                let open = egui::Button::new("Open dataset…").shortcut_text(shortcut(ui, &OPEN_SHORTCUT));
+                if ui.add(open).clicked() {
+                    ui.close();
+                    files::ask(p, FilePurpose::OpenDataset);
                 }
                 ui.menu_button("Recent datasets", |ui| {
                     let recent: Vec<PathBuf> = p.shell.recent.clone();
@@ -141,31 +159,21 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     .clicked()
                 {
                     ui.close();
-                    if let Some(dir) = rfd::FileDialog::new()
-                        .set_title("Open a sweep folder")
-                        .pick_folder()
-                    {
-                        p.act(Action::OpenSweep(dir));
-                    }
+                    files::ask(p, FilePurpose::OpenSweep);
                 }
-                if ui.button("Save session…").clicked() {
-                    if let Some(path) = save_dialog("Save session", ("session", &["json"]), "session.json") {
-                        p.act(Action::SaveSession(path));
-                    }
+                let save = egui::Button::new("Save session…").shortcut_text(shortcut(ui, &SAVE_SHORTCUT));
+                if ui.add(save).clicked() {
+                    ui.close();
+                    files::ask(p, FilePurpose::SaveSession);
                 }
                 if ui.button("Load session…").clicked() {
-                    if let Some(path) = rfd::FileDialog::new()
-                        .add_filter("session", &["json"])
-                        .pick_file()
-                    {
-                        p.act(Action::LoadSession(path));
-                    }
+                    ui.close();
+                    files::ask(p, FilePurpose::LoadSession);
                 }
                 ui.separator();
                 if ui.button("Export viewport PNG…").clicked() {
-                    if let Some(path) = save_dialog("Export viewport", ("PNG", &["png"]), "viewport.png") {
-                        p.act(Action::ExportPng(path));
-                    }
+                    ui.close();
+                    files::ask(p, FilePurpose::ExportPng);
                 }
                 let can_export = p.loaded.fused.is_some();
                 if ui
@@ -176,15 +184,8 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     )
                     .clicked()
                 {
-                    if let Some(path) = rfd::FileDialog::new()
-                        .set_title("Export fused cloud")
-                        .add_filter("PLY", &["ply"])
-                        .add_filter("PCD", &["pcd"])
-                        .set_file_name("fused.ply")
-                        .save_file()
-                    {
-                        p.act(Action::ExportCloud(path));
-                    }
+                    ui.close();
+                    files::ask(p, FilePurpose::ExportCloud);
                 }
                 ui.separator();
                 if ui.button("Quit").clicked() {
@@ -196,6 +197,15 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     if ui.button(v.name()).clicked() {
                         p.act(Action::SetPreset(v));
                     }
+                }
+                ui.separator();
+                let label = if p.shell.hide_panels {
+                    "Show side panels"
+                } else {
+                    "Hide side panels"
+                };
+                if ui.add(egui::Button::new(label).shortcut_text("Tab")).clicked() {
+                    p.shell.hide_panels = !p.shell.hide_panels;
                 }
             });
             ui.menu_button("Help", |ui| {
@@ -242,7 +252,7 @@ pub fn status_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 }
             }
             ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
-                ui.label(RichText::new("F1: help").weak());
+                ui.label(RichText::new("F1: help · Tab: hide panels").weak());
             });
         });
     });
@@ -291,21 +301,33 @@ pub fn sample_browser(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     }
 }
 
+/// The controls: each section under a header that folds, so that what is open fits 1280×800;
+/// the scroll bar always shows when the rest does not fit.
 pub fn controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    egui::ScrollArea::vertical().show(ui, |ui| {
-        perturbation(p, ui);
-        ui.separator();
-        detection::detection(p, ui);
-        selection::selection(p, ui);
-        ui.separator();
-        coloring(p, ui);
-        ui.separator();
-        view_controls(p, ui);
-    });
+    let out = egui::ScrollArea::vertical()
+        .scroll_bar_visibility(egui::scroll_area::ScrollBarVisibility::AlwaysVisible)
+        .show(ui, |ui| {
+            section(ui, "Extrinsic perturbation", true, |ui| perturbation(p, ui));
+            section(ui, "Detection", true, |ui| {
+                detection::detection(p, ui);
+                selection::selection(p, ui);
+            });
+            section(ui, "Colour", true, |ui| coloring::coloring(p, ui));
+            section(ui, "View", false, |ui| view_controls(p, ui));
+        });
+    // How far the open sections run past the visible height (≤ 0: everything is in sight).
+    p.shell.controls_overflow = out.content_size.y - out.inner_rect.height();
+}
+
+/// A folding section of the controls.
+fn section(ui: &mut egui::Ui, title: &str, open: bool, body: impl FnOnce(&mut egui::Ui)) {
+    egui::CollapsingHeader::new(RichText::new(title).heading())
+        .id_salt(title)
+        .default_open(open)
+        .show(ui, body);
 }
 
 fn perturbation(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    ui.heading("Extrinsic perturbation");
     // A LIDAR_TOP-only sample has nothing to perturb: the controls stay visible but off.
     let has_aux = p.loaded.frame.as_ref().is_none_or(|f| !f.is_single_lidar());
     // Disabled widgets still take accessibility actions (a screen reader's "set value"): on a
@@ -353,7 +375,7 @@ fn perturbation_controls(p: &mut Panels<'_>, ui: &mut egui::Ui, has_aux: bool) {
     });
     let alpha_now = fp.perturbation.alpha;
     let mut toggle = None;
-    let mut clip = None;
+    let mut clip = false;
     ui.horizontal(|ui| {
         let to = crate::gui::clip::play_target(alpha_now);
         let play = if p.shell.play.is_some() {
@@ -374,14 +396,14 @@ fn perturbation_controls(p: &mut Panels<'_>, ui: &mut egui::Ui, has_aux: bool) {
             .on_hover_text("Write the same animation of this view as an animated GIF (like `mlod clip`)")
             .clicked()
         {
-            clip = save_dialog("Export clip", ("GIF", &["gif"]), "clip.gif");
+            clip = true;
         }
     });
     if let Some(to) = toggle {
         p.act(Action::TogglePlay(to));
     }
-    if let Some(path) = clip {
-        p.act(Action::ExportClip(path));
+    if clip {
+        files::ask(p, FilePurpose::ExportClip);
     }
     let fp = &mut p.session.fuse;
     ui.horizontal(|ui| {
@@ -492,185 +514,7 @@ fn drag_row(
     changed
 }
 
-fn coloring(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    ui.heading("Colour");
-    let c = &mut p.session.color;
-    let mut changed = false;
-    ui.horizontal_wrapped(|ui| {
-        for m in ColorMode::ALL {
-            changed |= ui.radio_value(&mut c.mode, m, m.label()).changed();
-        }
-    });
-    if changed {
-        // The user's choice outlives the first-sight switch to tr(Ξ).
-        p.shell.auto_color = false;
-    }
-    if c.mode != ColorMode::Source {
-        ui.horizontal(|ui| {
-            changed |= ui.radio_value(&mut c.scale, Scale::Linear, "linear").changed();
-            changed |= ui.radio_value(&mut c.scale, Scale::Log, "log").changed();
-            changed |= ui.checkbox(&mut p.session.auto_range, "auto range").changed();
-        });
-        if !p.session.auto_range {
-            ui.horizontal(|ui| {
-                let (lo, hi) = &mut c.range;
-                changed |= ui
-                    .add(egui::DragValue::new(lo).speed(0.001).prefix("min "))
-                    .changed();
-                changed |= ui
-                    .add(egui::DragValue::new(hi).speed(0.001).prefix("max "))
-                    .changed();
-                if *hi <= *lo {
-                    *hi = *lo + 1e-3;
-                }
-            });
-        }
-    }
-    let mut hl = c.highlight_above.is_some();
-    if ui
-        .checkbox(
-            &mut hl,
-            format!("highlight uncertain points (tr Ξ > {UNCERTAIN_TRACE})"),
-        )
-        .changed()
-    {
-        c.highlight_above = hl.then_some(UNCERTAIN_TRACE);
-        changed = true;
-    }
-    legend(p, ui);
-    histogram(p, ui);
-    if changed {
-        p.act(Action::Recolor);
-    }
-}
-
-fn legend(p: &Panels<'_>, ui: &mut egui::Ui) {
-    let c = &p.session.color;
-    if c.mode == ColorMode::Source {
-        ui.horizontal(|ui| {
-            for ch in LidarChannel::ALL {
-                ui.label(lidar_label(ch));
-            }
-        });
-        return;
-    }
-    let width = ui.available_width().min(300.0);
-    let (rect, _) = ui.allocate_exact_size(egui::vec2(width, 40.0), Sense::hover());
-    let bar = egui::Rect::from_min_size(rect.min + egui::vec2(8.0, 2.0), egui::vec2(width - 16.0, 14.0));
-    let painter = ui.painter_at(rect);
-    let steps = 64;
-    for i in 0..steps {
-        let t0 = i as f32 / steps as f32;
-        let x0 = bar.left() + t0 * bar.width();
-        let x1 = bar.left() + (i + 1) as f32 / steps as f32 * bar.width();
-        painter.rect_filled(
-            egui::Rect::from_x_y_ranges(x0..=x1 + 0.5, bar.y_range()),
-            0.0,
-            color32(turbo(t0 + 0.5 / steps as f32)),
-        );
-    }
-    let text = ui.visuals().text_color();
-    for t in ticks(c.range, c.scale) {
-        let x = bar.left() + normalize(t, c.range, c.scale) * bar.width();
-        painter.line_segment(
-            [egui::pos2(x, bar.bottom()), egui::pos2(x, bar.bottom() + 4.0)],
-            Stroke::new(1.0, text),
-        );
-        painter.text(
-            egui::pos2(x, bar.bottom() + 5.0),
-            egui::Align2::CENTER_TOP,
-            format_tick(t),
-            egui::FontId::proportional(11.0),
-            text,
-        );
-    }
-    if c.mode == ColorMode::Trace && c.range.0 < UNCERTAIN_TRACE && UNCERTAIN_TRACE < c.range.1 {
-        let x = bar.left() + normalize(UNCERTAIN_TRACE, c.range, c.scale) * bar.width();
-        painter.line_segment(
-            [egui::pos2(x, bar.top() - 2.0), egui::pos2(x, bar.bottom() + 2.0)],
-            Stroke::new(2.0, color32(HIGHLIGHT)),
-        );
-    }
-    ui.label(
-        RichText::new(format!(
-            "{} ({})",
-            c.mode.label(),
-            if c.mode.unit().is_empty() {
-                "-"
-            } else {
-                c.mode.unit()
-            }
-        ))
-        .weak(),
-    );
-}
-
-fn format_tick(t: f32) -> String {
-    let a = t.abs();
-    if a == 0.0 {
-        "0".into()
-    } else if !(1e-2..1e4).contains(&a) {
-        format!("{t:.0e}")
-    } else if a < 1.0 {
-        format!("{t:.2}")
-    } else {
-        format!("{t:.0}")
-    }
-}
-
-fn histogram(p: &Panels<'_>, ui: &mut egui::Ui) {
-    let Some(cloud) = &p.loaded.fused else { return };
-    if p.loaded.histogram.is_empty() {
-        return;
-    }
-    let traced = p.session.color.mode == ColorMode::Source;
-    let title = if traced {
-        "tr(Ξ) histogram (log)".to_string()
-    } else {
-        format!("{} histogram", p.session.color.mode.label())
-    };
-    ui.label(RichText::new(title).weak());
-    let width = ui.available_width().min(300.0);
-    let (rect, _) = ui.allocate_exact_size(egui::vec2(width, 70.0), Sense::hover());
-    let painter = ui.painter_at(rect);
-    painter.rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
-    let max = p.loaded.histogram.iter().copied().max().unwrap_or(1).max(1) as f32;
-    let n = p.loaded.histogram.len() as f32;
-    for (i, &count) in p.loaded.histogram.iter().enumerate() {
-        if count == 0 {
-            continue;
-        }
-        // Square-root height so that small bins stay visible next to the dominant one.
-        let h = (count as f32 / max).sqrt() * (rect.height() - 4.0);
-        let x0 = rect.left() + i as f32 / n * rect.width();
-        let x1 = rect.left() + (i + 1) as f32 / n * rect.width();
-        let col = if traced {
-            Color32::from_gray(170)
-        } else {
-            color32(turbo((i as f32 + 0.5) / n))
-        };
-        painter.rect_filled(
-            egui::Rect::from_min_max(
-                egui::pos2(x0, rect.bottom() - h),
-                egui::pos2(x1 - 0.5, rect.bottom()),
-            ),
-            0.0,
-            col,
-        );
-    }
-    ui.label(format!(
-        "uncertain points |P_u|/|P| = {:.1} %  (tr Ξ > {UNCERTAIN_TRACE}, {} of {})",
-        100.0 * p.loaded.uncertain_fraction,
-        (p.loaded.uncertain_fraction * cloud.len() as f64).round(),
-        cloud.len()
-    ));
-    if let Some((lo, hi)) = cloud.trace_range() {
-        ui.label(RichText::new(format!("tr(Ξ) from {lo:.4} to {hi:.4} m²")).weak());
-    }
-}
-
 fn view_controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    ui.heading("View");
     ui.horizontal_wrapped(|ui| {
         for v in View::ALL {
             if ui.button(v.name()).clicked() {
@@ -679,6 +523,8 @@ fn view_controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         }
     });
     ui.add(egui::Slider::new(&mut p.view.settings.point_size, 1.0..=8.0).text("point size"));
+    ui.add(egui::Slider::new(&mut p.view.settings.line_width, 1.0..=6.0).text("box line width"));
+    coloring::palette(p, ui);
     let mut changed = false;
     ui.horizontal(|ui| {
         for ch in LidarChannel::ALL {
@@ -689,36 +535,8 @@ fn view_controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             }
         }
     });
-    let mut gt = p.session.show_ground_truth;
-    if ui
-        .checkbox(
-            &mut gt,
-            RichText::new("ground-truth boxes").color(color32(GT_COLOR)),
-        )
-        .changed()
-    {
-        p.session.show_ground_truth = gt;
-        p.act(Action::RebuildLines);
-    }
     if changed {
         p.act(Action::Refuse);
-    }
-}
-
-pub fn help_overlay(p: &mut Panels<'_>, ctx: &egui::Context) {
-    if !p.shell.show_help {
-        return;
-    }
-    let mut open = true;
-    egui::Window::new("Keyboard and mouse").open(&mut open).collapsible(false).resizable(false).anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0]).show(ctx, |ui| {
-        ui.monospace(CONTROLS_HELP);
-        ui.separator();
-        ui.monospace("Left/Right  previous / next sample\nB           bird's eye / overview\nD           run the detector (Detection panel)\nF           focus the selected box\nF1 or ?     this help\nEsc         close / cancel / clear the selection");
-        ui.separator();
-        ui.label("Drop a dataset folder or a session .json on the window to open it.");
-    });
-    if !open {
-        p.shell.show_help = false;
     }
 }
 

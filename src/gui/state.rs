@@ -33,6 +33,8 @@ pub const REFINED_COLOR: [u8; 4] = [235, 60, 60, 255];
 pub const REFINED_FALSE_POSITIVE_COLOR: [u8; 4] = [200, 150, 150, 255];
 /// The selected box, drawn over its layer's colour: amber, a colour no layer uses.
 pub const SELECTED_COLOR: [u8; 4] = [255, 200, 40, 255];
+/// The halo under the selected box's amber lines: a darker amber.
+pub const SELECTED_HALO_COLOR: [u8; 4] = [170, 115, 10, 255];
 /// The thin line from a proposal's centre to its refinement's: a dimmer red.
 pub const LINK_COLOR: [u8; 4] = [150, 55, 55, 255];
 /// The active points (§V-C) of the hovered or selected refined box: white, a colour no
@@ -111,6 +113,105 @@ pub struct Shell {
     /// First sight: the window opened without a session shows the source-LiDAR colours at α = 0
     /// and switches to tr(Ξ) the first time α leaves 0, unless the user chose a colouring first.
     pub auto_color: bool,
+    /// A desktop file dialog can open (else every file action asks with a path field).
+    pub native_dialogs: bool,
+    /// The path field standing in for a file dialog, while open.
+    pub prompt: Option<PathPrompt>,
+    /// The session file last saved or loaded (the window's title names it).
+    pub session_file: Option<PathBuf>,
+    /// The window title as last sent.
+    pub title: String,
+    /// Tab: the side panels hidden.
+    pub hide_panels: bool,
+    /// Where the controls panel was drawn last frame (none while hidden).
+    pub controls_rect: Option<egui::Rect>,
+    /// How many points the controls' open sections run past the panel's height (≤ 0: none).
+    pub controls_overflow: f32,
+}
+
+/// What a file dialog is for: its title, file type and suggested name, and the action it ends in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FilePurpose {
+    OpenDataset,
+    OpenSweep,
+    SaveSession,
+    LoadSession,
+    ExportPng,
+    ExportCloud,
+    ExportClip,
+}
+
+impl FilePurpose {
+    pub fn title(self) -> &'static str {
+        match self {
+            FilePurpose::OpenDataset => "Open dataset (a folder)",
+            FilePurpose::OpenSweep => "Open sweep results (a folder)",
+            FilePurpose::SaveSession => "Save session",
+            FilePurpose::LoadSession => "Load session",
+            FilePurpose::ExportPng => "Export viewport PNG",
+            FilePurpose::ExportCloud => "Export fused cloud (.ply or .pcd)",
+            FilePurpose::ExportClip => "Export clip (GIF)",
+        }
+    }
+
+    /// The file name offered (empty for folders).
+    pub fn default_name(self) -> &'static str {
+        match self {
+            FilePurpose::OpenDataset | FilePurpose::OpenSweep => "",
+            FilePurpose::SaveSession | FilePurpose::LoadSession => "session.json",
+            FilePurpose::ExportPng => "viewport.png",
+            FilePurpose::ExportCloud => "fused.ply",
+            FilePurpose::ExportClip => "clip.gif",
+        }
+    }
+
+    /// Whether it writes a file (a save dialog), picks a folder, or reads a file.
+    pub fn saves(self) -> bool {
+        matches!(
+            self,
+            FilePurpose::SaveSession
+                | FilePurpose::ExportPng
+                | FilePurpose::ExportCloud
+                | FilePurpose::ExportClip
+        )
+    }
+
+    pub fn folder(self) -> bool {
+        matches!(self, FilePurpose::OpenDataset | FilePurpose::OpenSweep)
+    }
+
+    /// The extensions its filter offers.
+    pub fn extensions(self) -> &'static [&'static str] {
+        match self {
+            FilePurpose::OpenDataset | FilePurpose::OpenSweep => &[],
+            FilePurpose::SaveSession | FilePurpose::LoadSession => &["json"],
+            FilePurpose::ExportPng => &["png"],
+            FilePurpose::ExportCloud => &["ply", "pcd"],
+            FilePurpose::ExportClip => &["gif"],
+        }
+    }
+
+    /// The action a chosen path ends in.
+    pub fn action(self, path: PathBuf) -> Action {
+        match self {
+            FilePurpose::OpenDataset => Action::OpenDataset(path),
+            FilePurpose::OpenSweep => Action::OpenSweep(path),
+            FilePurpose::SaveSession => Action::SaveSession(path),
+            FilePurpose::LoadSession => Action::LoadSession(path),
+            FilePurpose::ExportPng => Action::ExportPng(path),
+            FilePurpose::ExportCloud => Action::ExportCloud(path),
+            FilePurpose::ExportClip => Action::ExportClip(path),
+        }
+    }
+}
+
+/// The path field shown where no desktop file dialog could open.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathPrompt {
+    pub purpose: FilePurpose,
+    pub text: String,
+    /// Why it is shown (no dialog service, or the dialog did not open).
+    pub why: String,
 }
 
 impl Shell {
@@ -161,6 +262,8 @@ pub struct FailureBrowser {
     pub millis: f64,
     /// The case, α and seed of the scan in flight.
     pub scanning: Option<(Case, f64, u64)>,
+    /// Show only the objects the perturbation lost (detected at α = 0, missed now).
+    pub lost_only: bool,
 }
 
 impl Default for FailureBrowser {
@@ -172,6 +275,7 @@ impl Default for FailureBrowser {
             result: None,
             millis: 0.0,
             scanning: None,
+            lost_only: false,
         }
     }
 }
@@ -211,6 +315,8 @@ pub struct Loaded {
     pub frame: Option<Arc<Frame>>,
     pub fused: Option<FusedCloud>,
     pub histogram: Vec<u32>,
+    /// The histogram's range and scale (its x axis), and whether it shows tr(Ξ).
+    pub histogram_axis: Option<((f32, f32), crate::color::Scale, bool)>,
     pub uncertain_fraction: f64,
     pub fuse_ms: f64,
     pub frame_ms: f64,

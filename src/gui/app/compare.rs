@@ -114,6 +114,9 @@ impl MlodApp {
         self.central_main(&mut a);
         let mut b = ui.new_child(egui::UiBuilder::new().max_rect(right).id_salt("mlod_view_b"));
         viewport::show(&mut b, &mut self.view, &self.scene_b);
+        let labels = self.scene_labels(false);
+        let alpha = self.shell.play.map(|_| self.session.fuse.perturbation.alpha);
+        crate::gui::overlay::annotate(b.painter(), right, &self.view.camera, &labels, alpha);
         ui.allocate_rect(full, egui::Sense::hover());
         let min_score = self.session.detection.min_score;
         let label = |case: Case, d: Option<&DetectionView>| match d {

@@ -47,6 +47,23 @@ impl MlodApp {
         }
     }
 
+    /// "Play α" asked from the panel: an ICP calibration fits one drift only, so it cannot follow
+    /// α; the toast says so rather than dropping it silently (calibrate again where α stops).
+    pub(super) fn play_from_panel(&mut self, alpha_to: f64, now: f64) {
+        if self.session.oc.calibration.is_some() {
+            let alpha = self.session.fuse.perturbation.alpha;
+            self.toast(
+                now,
+                format!(
+                    "play α: the ICP calibration was estimated at α = {alpha} and fits that drift \
+                     only, so the animation shows the drifted cloud; calibrate again where α stops"
+                ),
+                false,
+            );
+        }
+        self.start_play(alpha_to, PLAY_FRAMES);
+    }
+
     /// Whether "play α" is running.
     pub fn is_playing(&self) -> bool {
         self.shell.play.is_some()
@@ -82,6 +99,7 @@ impl MlodApp {
             measure_frames: None,
             measure_run: false,
             models: Some(self.models_dir.clone()),
+            session_file: None,
         };
         self.toast(
             now,

@@ -10,13 +10,14 @@ use super::MlodApp;
 use crate::dataset::Frame;
 use crate::detect::Case;
 use crate::eval::PredOutcome;
+use crate::geometry::Box3d;
 use crate::gui::jobs::{DetectOutput, DetectRequest};
 use crate::gui::state::{
     DetectionCounts, DetectionView, RawDetection, ACTIVE_POINT_COLOR, FALSE_POSITIVE_COLOR, GT_COLOR,
     LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
+    SELECTED_HALO_COLOR,
 };
-use crate::gui::viewport::{box_lines, grid_lines, LineVertex};
-use crate::session::BoxLayer;
+use crate::gui::viewport::{box_lines, ego_lines, grid_lines, LineVertex};
 
 impl MlodApp {
     /// Runs the session's case on the sample on screen, in the background. A request while one
@@ -219,83 +220,94 @@ impl MlodApp {
         }
     }
 
-    /// The line segments: the grid, then the ground truth (green), stage 1's boxes (blue, false
-    /// positives greyed) and the refined boxes (red) with a line from each proposal's centre to
-    /// its refinement's, in that order (a later layer wins where lines overlap).
+    /// The line segments: the grid and the ego vehicle in depth with the points, then, over the
+    /// points, the ground truth (green), stage 1's boxes (blue, false positives greyed) and the
+    /// refined boxes (red) with a line from each proposal's centre to its refinement's, in that
+    /// order (a later layer wins where lines overlap); with a box selected, the others dimmed and
+    /// the selected one last, thick and amber.
     pub(crate) fn rebuild_lines(&mut self) {
-        let mut lines = self.lines_for(self.loaded.detection.as_ref());
-        self.select_lines(&mut lines);
-        self.scene.set_lines(lines);
+        let selected = self.loaded.selected.and_then(|p| self.box_of(p));
+        let (lines, from) = self.lines_for(self.loaded.detection.as_ref(), selected);
+        self.scene.set_lines_with_overlay(lines, from);
         if self.session.compare.is_some() {
-            let lines = self.lines_for(self.loaded.detection_b.as_ref());
-            self.scene_b.set_lines(lines);
+            let (lines, from) = self.lines_for(self.loaded.detection_b.as_ref(), None);
+            self.scene_b.set_lines_with_overlay(lines, from);
         }
     }
 
-    /// The grid, the ground truth and a detection's layers, as the session's settings draw them.
-    pub(super) fn lines_for(&self, d: Option<&DetectionView>) -> Vec<LineVertex> {
-        let mut lines = grid_lines(80.0, 10.0, -1.8);
+    /// The grid and the ego vehicle, then (from the returned index on, drawn over the points) the
+    /// ground truth and a detection's layers as the session's settings draw them, and `selected`.
+    pub(super) fn lines_for(
+        &self,
+        d: Option<&DetectionView>,
+        selected: Option<Box3d>,
+    ) -> (Vec<LineVertex>, usize) {
+        let mut lines = grid_lines(80.0, 10.0, GROUND_Z);
+        lines.extend(ego_lines(self.ego_heading, GROUND_Z, EGO_ARROW).0);
+        let from = lines.len();
+        let bg = self.view.settings.background;
+        let dim = |c: [u8; 4]| match selected {
+            Some(_) => dimmed(c, bg),
+            None => c,
+        };
         if self.session.show_ground_truth {
             if let Some(f) = &self.loaded.frame {
                 for b in &f.boxes {
-                    lines.extend(box_lines(b.box3d.corners(), GT_COLOR, true));
+                    lines.extend(box_lines(b.box3d.corners(), dim(GT_COLOR), true));
                 }
             }
         }
         let settings = self.session.detection;
-        let Some(d) = d else {
-            return lines;
-        };
-        let color = |o: &PredOutcome, tp: [u8; 4], fp: [u8; 4]| match o {
-            PredOutcome::FalsePositive { .. } => fp,
-            _ => tp,
-        };
-        if settings.show {
-            for (det, o) in d.detections.iter().zip(&d.outcomes) {
-                if det.score >= settings.min_score {
-                    let c = color(o, PROPOSAL_COLOR, FALSE_POSITIVE_COLOR);
-                    lines.extend(box_lines(det.box3d.corners(), c, true));
+        if let Some(d) = d {
+            let color = |o: &PredOutcome, tp: [u8; 4], fp: [u8; 4]| match o {
+                PredOutcome::FalsePositive { .. } => dim(fp),
+                _ => dim(tp),
+            };
+            if settings.show {
+                for (det, o) in d.detections.iter().zip(&d.outcomes) {
+                    if det.score >= settings.min_score {
+                        let c = color(o, PROPOSAL_COLOR, FALSE_POSITIVE_COLOR);
+                        lines.extend(box_lines(det.box3d.corners(), c, true));
+                    }
+                }
+            }
+            if let Some(r) = d.refinement.as_ref().filter(|_| settings.show_refined) {
+                let centre = |c: [f64; 3]| [c[0] as f32, c[1] as f32, c[2] as f32];
+                for (x, o) in r.refined.iter().zip(&r.outcomes) {
+                    if x.detection.score < settings.min_score {
+                        continue;
+                    }
+                    if let Some(p) = d.detections.get(x.proposal) {
+                        let link = dim(LINK_COLOR);
+                        lines.push(LineVertex::new(centre(p.box3d.center), link).with_width(0.5));
+                        lines.push(LineVertex::new(centre(x.detection.box3d.center), link).with_width(0.5));
+                    }
+                    let c = color(o, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR);
+                    lines.extend(box_lines(x.detection.box3d.corners(), c, true));
                 }
             }
         }
-        if let Some(r) = d.refinement.as_ref().filter(|_| settings.show_refined) {
-            let centre = |c: [f64; 3]| [c[0] as f32, c[1] as f32, c[2] as f32];
-            for (x, o) in r.refined.iter().zip(&r.outcomes) {
-                if x.detection.score < settings.min_score {
-                    continue;
-                }
-                if let Some(p) = d.detections.get(x.proposal) {
-                    lines.push(LineVertex::new(centre(p.box3d.center), LINK_COLOR));
-                    lines.push(LineVertex::new(centre(x.detection.box3d.center), LINK_COLOR));
-                }
-                let c = color(o, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR);
-                lines.extend(box_lines(x.detection.box3d.corners(), c, true));
-            }
+        if let Some(b) = selected {
+            // A wide dark-amber halo under a bright amber core.
+            let halo = box_lines(b.corners(), SELECTED_HALO_COLOR, true);
+            lines.extend(halo.into_iter().map(|v| v.with_width(SELECTED_HALO_WIDTH)));
+            let core = box_lines(b.corners(), SELECTED_COLOR, true);
+            lines.extend(core.into_iter().map(|v| v.with_width(SELECTED_WIDTH)));
         }
-        lines
+        (lines, from)
     }
+}
 
-    /// The selected box drawn again in the selection colour, last, so that it stands out.
-    fn select_lines(&self, lines: &mut Vec<LineVertex>) {
-        let Some((layer, i)) = self.loaded.selected else {
-            return;
-        };
-        let d = self.loaded.detection.as_ref();
-        let b = match layer {
-            BoxLayer::Truth => self
-                .loaded
-                .frame
-                .as_ref()
-                .and_then(|f| f.boxes.get(i))
-                .map(|b| b.box3d),
-            BoxLayer::Proposal => d.and_then(|d| d.detections.get(i)).map(|x| x.box3d),
-            BoxLayer::Refined => d
-                .and_then(|d| d.refinement.as_ref())
-                .and_then(|r| r.refined.get(i))
-                .map(|x| x.detection.box3d),
-        };
-        if let Some(b) = b {
-            lines.extend(box_lines(b.corners(), SELECTED_COLOR, true));
-        }
-    }
+/// The ground plane of the grid and the ego outline (base frame, m).
+pub(crate) const GROUND_Z: f32 = -1.8;
+/// Length of the ego vehicle's forward arrow beyond its front (m).
+pub(crate) const EGO_ARROW: f32 = 6.0;
+/// The selected box's core and halo widths, as multiples of the box line width.
+const SELECTED_WIDTH: f32 = 2.0;
+const SELECTED_HALO_WIDTH: f32 = 6.4;
+
+/// A box colour halfway to the background: the boxes around a selection.
+fn dimmed(c: [u8; 4], bg: [u8; 3]) -> [u8; 4] {
+    let mix = |a: u8, b: u8| ((u16::from(a) * 2 + u16::from(b) * 3) / 5) as u8;
+    [mix(c[0], bg[0]), mix(c[1], bg[1]), mix(c[2], bg[2]), c[3]]
 }

@@ -64,11 +64,12 @@ impl MlodApp {
         };
         let c = b.center;
         self.view.camera.target = [c[0] as f32, c[1] as f32, c[2] as f32];
-        self.view.camera.distance = (4.0 * b.size_lwh[0].max(b.size_lwh[1]) as f32).clamp(10.0, 40.0);
+        // Far enough to see the box with its surroundings (a car: ~25 m), never right on it.
+        self.view.camera.distance = (5.5 * b.size_lwh[0].max(b.size_lwh[1]) as f32).clamp(15.0, 50.0);
     }
 
     /// The box of a layer and index on screen.
-    fn box_of(&self, (layer, i): (BoxLayer, usize)) -> Option<Box3d> {
+    pub(super) fn box_of(&self, (layer, i): (BoxLayer, usize)) -> Option<Box3d> {
         let d = self.loaded.detection.as_ref();
         match layer {
             BoxLayer::Truth => self.loaded.frame.as_ref()?.boxes.get(i).map(|b| b.box3d),

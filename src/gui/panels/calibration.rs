@@ -53,7 +53,8 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     let frame = p.loaded.frame.clone();
     let timings = p.shell.show_timings;
     for l in &cal.lidars {
-        ui.horizontal(|ui| {
+        // Wrapped rows: nothing runs off the panel's right edge at 1280×800.
+        ui.horizontal_wrapped(|ui| {
             ui.label(lidar_label(l.channel));
             let truth = frame
                 .as_ref()
@@ -65,7 +66,7 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 None => ui.label("—"),
             };
         });
-        ui.horizontal(|ui| {
+        ui.horizontal_wrapped(|ui| {
             ui.add_space(12.0);
             let status = if !l.converged {
                 RichText::new(format!("not converged ({} it)", l.iterations))
@@ -104,7 +105,7 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         .checkbox(&mut p.session.oc.show_corrected, "show corrected cloud")
         .on_hover_text("Fuse with ICP's extrinsics (on) or the drifted ones (off)")
         .changed();
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
         ui.label("tr(Ξ) after calibration");
         changed |= ui
             .radio_value(&mut p.session.oc.prior, OcPrior::Icp, "ICP covariance")

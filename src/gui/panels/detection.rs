@@ -13,7 +13,6 @@ use crate::gui::state::{
 };
 
 pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    ui.heading("Detection");
     let mut run = false;
     let mut rematch = false;
     let mut redraw = false;
@@ -65,7 +64,7 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         rematch |= ui.radio_value(&mut d.match_iou, 0.5, "0.5").changed();
         rematch |= ui.radio_value(&mut d.match_iou, 0.7, "0.7").changed();
     });
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
         let proposals = if mlod { "proposals" } else { "proposal boxes" };
         redraw |= ui
             .checkbox(
@@ -82,6 +81,12 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 .on_hover_text("The refined boxes and a line from each proposal's centre to its refinement's")
                 .changed();
         }
+        redraw |= ui
+            .checkbox(
+                &mut p.session.show_ground_truth,
+                RichText::new("ground-truth boxes").color(color32(GT_COLOR)),
+            )
+            .changed();
     });
     if mlod {
         ui.checkbox(&mut d.show_active, "show active points")
@@ -230,15 +235,16 @@ fn compare_lines(p: &Panels<'_>, ui: &mut egui::Ui, a: DetectionCounts) {
         b.missed,
         b.ground_truth
     ));
+    // From the main case's side: what it gains (or loses) over the compare case.
     let d = |x: usize, y: usize| x as i64 - y as i64;
     ui.label(
         RichText::new(format!(
             "{} vs {}: {:+} TP, {:+} FP, {:+} missed",
-            b_case.paper_name(),
             a_case.paper_name(),
-            d(b.true_positives, a.true_positives),
-            d(b.false_positives, a.false_positives),
-            d(b.missed, a.missed)
+            b_case.paper_name(),
+            d(a.true_positives, b.true_positives),
+            d(a.false_positives, b.false_positives),
+            d(a.missed, b.missed)
         ))
         .strong(),
     );

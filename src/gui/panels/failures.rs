@@ -1,7 +1,9 @@
-//! The failure browser: scan the session's case over this scene or the whole dataset at the
-//! session's perturbation (progress bar, cancel), then read the worst samples and their failing
-//! boxes — misses, false positives, the largest IoU drops against α = 0 — sortable; a click on a
-//! box loads its sample with the same perturbation and selects and focuses it.
+//! The failure browser, docked under the viewport (resizable; it never covers the boxes it finds):
+//! scan the session's case over this scene or the whole dataset at the session's perturbation
+//! (progress bar, cancel), then read the worst samples and their failing boxes — misses, false
+//! positives, the largest IoU drops against α = 0 — with their class, range and points, sortable
+//! and filtered to what the perturbation alone lost if asked; a click on a box loads its sample
+//! with the same perturbation and selects and frames it.
 
 use eframe::egui;
 use egui::RichText;
@@ -14,21 +16,26 @@ use crate::session::FailureScope;
 /// Rows shown at most (the worst first).
 const MAX_ROWS: usize = 200;
 
-/// The failure-browser window, while open.
-pub fn failure_window(p: &mut Panels<'_>, ctx: &egui::Context) {
+/// The failure browser docked at the bottom of the viewport, while open.
+pub fn failure_panel(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     if p.shell.failures.is_none() {
         return;
     }
-    let mut open = true;
-    egui::Window::new("Failure cases")
-        .id(egui::Id::unique("mlod_failure_window"))
-        .open(&mut open)
-        .default_size([560.0, 440.0])
+    egui::Panel::bottom("mlod_failures")
         .resizable(true)
-        .show(ctx, |ui| browser(p, ui));
-    if !open {
-        p.act(Action::ToggleFailures);
-    }
+        .default_size(210.0)
+        .min_size(90.0)
+        .show(ui, |ui| {
+            ui.horizontal(|ui| {
+                ui.strong("Failure cases");
+                ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+                    if ui.small_button("close").clicked() {
+                        p.act(Action::ToggleFailures);
+                    }
+                });
+            });
+            browser(p, ui);
+        });
 }
 
 fn kind_label(k: FailureKind) -> RichText {
@@ -91,51 +98,68 @@ fn browser(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             ui.radio_value(&mut b.sort, FailureSort::Sample, "worst sample");
             ui.radio_value(&mut b.sort, FailureSort::Drop, "IoU drop");
             ui.radio_value(&mut b.sort, FailureSort::Kind, "kind");
+            ui.separator();
+            ui.checkbox(&mut b.lost_only, "lost by the perturbation only")
+                .on_hover_text("Only the objects detected at α = 0 and missed now");
         });
+        let lost_only = b.lost_only;
         let mut boxes: Vec<(usize, &BoxFailure)> = rows
             .iter()
             .flat_map(|r| r.boxes.iter().map(move |x| (r.index, x)))
+            .filter(|(_, x)| !lost_only || x.lost_by_perturbation())
             .collect();
         match b.sort {
             FailureSort::Sample => {}
             FailureSort::Drop => boxes.sort_by(|x, y| y.1.iou_drop().total_cmp(&x.1.iou_drop())),
             FailureSort::Kind => boxes.sort_by_key(|x| x.1.kind as u8),
         }
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            egui::Grid::new("mlod_failure_rows")
-                .striped(true)
-                .num_columns(5)
-                .show(ui, |ui| {
-                    ui.strong("sample");
-                    ui.strong("what");
-                    ui.strong("IoU α = 0");
-                    ui.strong("IoU now");
-                    ui.strong("score");
-                    ui.end_row();
-                    for (index, f) in boxes.iter().take(MAX_ROWS) {
-                        let link = ui
-                            .link(format!(
-                                "#{index} {}",
-                                &f.sample_token.get(..8).unwrap_or(&f.sample_token)
-                            ))
-                            .on_hover_text(
-                                "Load this sample with the same perturbation, select and focus the box",
-                            );
-                        ui.label(kind_label(f.kind));
-                        let iou = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.2}"));
-                        ui.monospace(iou(f.iou_at_zero));
-                        ui.monospace(iou(f.iou_now));
-                        ui.monospace(f.score.map_or("–".to_string(), |s| format!("{s:.2}")));
-                        ui.end_row();
-                        if link.clicked() {
-                            actions.push(Action::GoToFailure((*f).clone()));
+        egui::ScrollArea::vertical()
+            .auto_shrink([false, false])
+            .show(ui, |ui| {
+                egui::Grid::new("mlod_failure_rows")
+                    .striped(true)
+                    .num_columns(8)
+                    .show(ui, |ui| {
+                        for h in [
+                            "sample",
+                            "what",
+                            "class",
+                            "range",
+                            "points",
+                            "IoU α = 0",
+                            "IoU now",
+                            "score",
+                        ] {
+                            ui.strong(h);
                         }
-                    }
-                });
-            if boxes.len() > MAX_ROWS {
-                ui.label(RichText::new(format!("… and {} more", boxes.len() - MAX_ROWS)).weak());
-            }
-        });
+                        ui.end_row();
+                        for (index, f) in boxes.iter().take(MAX_ROWS) {
+                            let link = ui
+                                .link(format!(
+                                    "#{index} {}",
+                                    &f.sample_token.get(..8).unwrap_or(&f.sample_token)
+                                ))
+                                .on_hover_text(
+                                    "Load this sample with the same perturbation, select and focus the box",
+                                );
+                            ui.label(kind_label(f.kind));
+                            ui.label(&f.category);
+                            ui.monospace(format!("{:.1} m", f.range()));
+                            ui.monospace(format!("{}", f.points));
+                            let iou = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.2}"));
+                            ui.monospace(iou(f.iou_at_zero));
+                            ui.monospace(iou(f.iou_now));
+                            ui.monospace(f.score.map_or("–".to_string(), |s| format!("{s:.2}")));
+                            ui.end_row();
+                            if link.clicked() {
+                                actions.push(Action::GoToFailure((*f).clone()));
+                            }
+                        }
+                    });
+                if boxes.len() > MAX_ROWS {
+                    ui.label(RichText::new(format!("… and {} more", boxes.len() - MAX_ROWS)).weak());
+                }
+            });
     } else if b.running.is_none() {
         ui.label(RichText::new("no scan yet").weak());
     }

@@ -18,8 +18,11 @@
 //!   quad: software rasterisers pay per triangle, and it cut 150k points at 1280×800 on lavapipe
 //!   from 137 to 83 ms. On devices without vertex-stage storage buffers (egui on GL runs with
 //!   WebGL2 limits) the same slices are bound as per-instance vertex attributes instead.
-//! * **Lines** are a second instanced draw, one segment per instance, expanded into quads of
-//!   constant pixel width after clipping the segment to the near plane.
+//! * **Lines** are instanced draws, one segment per instance, expanded into quads of constant
+//!   pixel width (the view's line width times the vertex's factor) after clipping the segment to
+//!   the near plane. The grid is drawn in depth before the points; boxes (the scene's overlay
+//!   lines) after them with no depth test, each on a dark outline, so they never sink into the
+//!   points.
 //! * **Depth.** egui's paint-callback pass has no depth attachment, so each view renders into its
 //!   own colour (4× MSAA on GPUs, none on software rasterisers; resolved) + depth target in
 //!   [`egui_wgpu::CallbackTrait::prepare`] with its own command encoder, and `paint` only blits
@@ -46,6 +49,7 @@
 //! if let Some(i) = out.picked { /* point i was double-clicked (and focused) */ }
 //! ```
 
+mod buffers;
 pub mod camera;
 mod offscreen;
 mod renderer;
@@ -56,7 +60,7 @@ use serde::{Deserialize, Serialize};
 
 pub use camera::{Camera, Projection, View};
 pub use offscreen::{render_offscreen, HeadlessGpu, OffscreenRenderer};
-pub use scene::{box_lines, grid_lines, LineVertex, SceneHandle};
+pub use scene::{box_lines, ego_lines, grid_lines, LineVertex, SceneHandle, GRID_WIDTH};
 
 pub use renderer::GpuUsage;
 use renderer::{EguiPass, FrameParams, PointSource, SceneRenderer, ViewportCallback, ViewportResources};
@@ -100,13 +104,16 @@ pub enum ViewportError {
     Readback(String),
 }
 
+/// Default box line width, UI points.
+pub const DEFAULT_LINE_WIDTH: f32 = 2.5;
+
 /// How the scene is drawn (stored in sessions along with the camera).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct ViewSettings {
     /// Point diameter in UI points (pixels × pixels-per-point).
     pub point_size: f32,
-    /// Line width in UI points.
+    /// Box line width in UI points (the grid's lines are [`GRID_WIDTH`] of it).
     pub line_width: f32,
     /// Clear colour, sRGB.
     pub background: [u8; 3],
@@ -116,7 +123,7 @@ impl Default for ViewSettings {
     fn default() -> Self {
         Self {
             point_size: 2.5,
-            line_width: 1.5,
+            line_width: DEFAULT_LINE_WIDTH,
             background: [20, 23, 30],
         }
     }

@@ -2,10 +2,12 @@
 //! paint callback that ties them together.
 //!
 //! How it works: a frame of one view is one render pass into the view's own colour (optionally
-//! multisampled, resolved) + depth target: lines first (one instanced draw, a segment per
-//! instance), then points (one draw of three vertices per point; the vertex shader reads the
+//! multisampled, resolved) + depth target: the grid's lines first (one instanced draw, a segment
+//! per instance), then points (one draw of three vertices per point; the vertex shader reads the
 //! point from storage buffers at `vertex_index / 3` and places corner `vertex_index % 3` of a
-//! triangle around its disc). Devices without vertex-stage storage buffers (egui's GL backend
+//! triangle around its disc), then the box lines over everything without a depth test — a dark,
+//! wider copy of every segment first, then the coloured ones — so that a box is never hidden in
+//! the points and its colour always sits on a dark rim. Devices without vertex-stage storage buffers (egui's GL backend
 //! runs with WebGL2 limits) get the same points as per-instance attributes, one instance per
 //! point, from the same slices. In the window that pass runs in [`egui_wgpu::CallbackTrait::prepare`] on its own
 //! command encoder, and [`egui_wgpu::CallbackTrait::paint`] only blits the resolved texture into
@@ -16,6 +18,7 @@ use std::collections::HashMap;
 
 use egui_wgpu::wgpu;
 
+use super::buffers::{GrowBuffer, SceneBuffers};
 use super::{Camera, SceneHandle, ViewSettings};
 
 /// Colour format of every view target; holds gamma-encoded (sRGB) bytes as they are.
@@ -50,7 +53,7 @@ impl PointSource {
         }
     }
 
-    fn buffer_usage(self) -> wgpu::BufferUsages {
+    pub(crate) fn buffer_usage(self) -> wgpu::BufferUsages {
         match self {
             Self::Storage => wgpu::BufferUsages::STORAGE,
             Self::Instanced => wgpu::BufferUsages::VERTEX,
@@ -68,9 +71,15 @@ pub(crate) struct FrameUniforms {
     line_half_width_px: f32,
     near_w: f32,
     alpha_to_coverage: u32,
-    _pad: [f32; 2],
+    /// The dark rim around box lines, pixels on each side.
+    outline_px: f32,
+    _pad: f32,
 }
 const _: () = assert!(std::mem::size_of::<FrameUniforms>() == 96);
+
+/// The dark rim drawn around box lines (UI points on each side): it separates a box's colour
+/// from whatever points lie behind it.
+const OUTLINE_WIDTH: f32 = 1.0;
 
 /// Everything needed to draw one frame of one view.
 #[derive(Clone, Debug)]
@@ -98,7 +107,8 @@ impl FrameParams {
             line_half_width_px: 0.5 * px(self.settings.line_width),
             near_w: self.camera.near_w(),
             alpha_to_coverage: u32::from(alpha_to_coverage),
-            _pad: [0.0; 2],
+            outline_px: px(OUTLINE_WIDTH),
+            _pad: 0.0,
         }
     }
 
@@ -117,140 +127,6 @@ pub struct GpuUsage {
     pub targets: usize,
     /// Bytes of the scenes' point, colour and line buffers.
     pub buffer_bytes: u64,
-}
-
-/// A GPU buffer that grows on demand (to the next power of two) and is rewritten in place.
-struct GrowBuffer {
-    label: &'static str,
-    usage: wgpu::BufferUsages,
-    buffer: Option<wgpu::Buffer>,
-    len: u64,
-}
-
-impl GrowBuffer {
-    fn new(label: &'static str, usage: wgpu::BufferUsages) -> Self {
-        Self {
-            label,
-            usage: usage | wgpu::BufferUsages::COPY_DST,
-            buffer: None,
-            len: 0,
-        }
-    }
-
-    /// One `queue.write_buffer`; a new buffer only when the old one is too small. Returns
-    /// whether the buffer was replaced (bind groups that name it must be rebuilt).
-    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, bytes: &[u8]) -> bool {
-        let len = bytes.len() as u64;
-        self.len = len;
-        if len == 0 {
-            return false;
-        }
-        let fits = self.buffer.as_ref().is_some_and(|b| b.size() >= len);
-        if !fits {
-            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(self.label),
-                size: len.next_power_of_two().max(4096),
-                usage: self.usage,
-                mapped_at_creation: false,
-            }));
-        }
-        if let Some(buffer) = &self.buffer {
-            queue.write_buffer(buffer, 0, bytes);
-        }
-        !fits
-    }
-
-    /// The written part, `None` when empty (never slices a zero-sized buffer).
-    fn slice(&self) -> Option<wgpu::BufferSlice<'_>> {
-        match &self.buffer {
-            Some(buffer) if self.len > 0 => Some(buffer.slice(..self.len)),
-            _ => None,
-        }
-    }
-}
-
-/// GPU copies of one [`SceneHandle`].
-struct SceneBuffers {
-    positions: GrowBuffer,
-    colors: GrowBuffer,
-    lines: GrowBuffer,
-    /// Binds `positions` and `colors` for the point shader (rebuilt when either is replaced).
-    points_bind_group: Option<wgpu::BindGroup>,
-    uploaded: [u64; 3],
-    /// The renderer's frame counter when this scene was last drawn.
-    last_used: u64,
-    points: u32,
-    segments: u32,
-}
-
-impl SceneBuffers {
-    fn new(source: PointSource) -> Self {
-        Self {
-            positions: GrowBuffer::new("mlod viewport positions", source.buffer_usage()),
-            colors: GrowBuffer::new("mlod viewport colours", source.buffer_usage()),
-            lines: GrowBuffer::new("mlod viewport lines", wgpu::BufferUsages::VERTEX),
-            points_bind_group: None,
-            uploaded: [0; 3],
-            last_used: 0,
-            points: 0,
-            segments: 0,
-        }
-    }
-
-    /// Uploads whatever changed since the last call (by generation).
-    fn sync(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        points_layout: Option<&wgpu::BindGroupLayout>,
-        max_points: usize,
-        scene: &SceneHandle,
-    ) {
-        let generations = scene.generations();
-        // Points beyond the buffer limit (11M with default limits) are not drawn.
-        let count = scene.points().len().min(scene.colors().len()).min(max_points);
-        let (positions, colors) = (
-            scene.points().get(..count).unwrap_or_default(),
-            scene.colors().get(..count).unwrap_or_default(),
-        );
-        let mut replaced = false;
-        if generations[0] != self.uploaded[0] {
-            replaced |= self
-                .positions
-                .upload(device, queue, bytemuck::cast_slice(positions));
-        }
-        if generations[1] != self.uploaded[1] {
-            replaced |= self.colors.upload(device, queue, bytemuck::cast_slice(colors));
-        }
-        if replaced || self.points_bind_group.is_none() {
-            self.points_bind_group = match (points_layout, &self.positions.buffer, &self.colors.buffer) {
-                (Some(points_layout), Some(positions), Some(colors)) => {
-                    Some(device.create_bind_group(&wgpu::BindGroupDescriptor {
-                        label: Some("mlod viewport points"),
-                        layout: points_layout,
-                        entries: &[
-                            wgpu::BindGroupEntry {
-                                binding: 0,
-                                resource: positions.as_entire_binding(),
-                            },
-                            wgpu::BindGroupEntry {
-                                binding: 1,
-                                resource: colors.as_entire_binding(),
-                            },
-                        ],
-                    }))
-                }
-                _ => None,
-            };
-        }
-        if generations[2] != self.uploaded[2] {
-            self.lines
-                .upload(device, queue, bytemuck::cast_slice(scene.lines()));
-        }
-        self.uploaded = generations;
-        self.points = u32::try_from(count).unwrap_or(u32::MAX / 3);
-        self.segments = u32::try_from(scene.lines().len() / 2).unwrap_or(u32::MAX);
-    }
 }
 
 /// The colour + depth target of one view, with its uniform buffer and bind groups.
@@ -444,6 +320,9 @@ pub(crate) struct SceneRenderer {
     points_layout: Option<wgpu::BindGroupLayout>,
     points: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
+    /// Box lines over the points: first their dark outline, then their colour (no depth test).
+    overlay_outline: wgpu::RenderPipeline,
+    overlay: wgpu::RenderPipeline,
     blit: Option<BlitPipeline>,
     scenes: HashMap<u64, SceneBuffers>,
     targets: HashMap<u64, RenderTarget>,
@@ -514,7 +393,8 @@ impl SceneRenderer {
                         layout: &wgpu::PipelineLayout,
                         vs: &str,
                         fs: &str,
-                        buffers: &[Option<wgpu::VertexBufferLayout>]| {
+                        buffers: &[Option<wgpu::VertexBufferLayout>],
+                        on_top: bool| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
                 layout: Some(layout),
@@ -527,8 +407,12 @@ impl SceneRenderer {
                 primitive: wgpu::PrimitiveState::default(),
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::GreaterEqual),
+                    depth_write_enabled: Some(!on_top),
+                    depth_compare: Some(if on_top {
+                        wgpu::CompareFunction::Always
+                    } else {
+                        wgpu::CompareFunction::GreaterEqual
+                    }),
                     stencil: wgpu::StencilState::default(),
                     bias: wgpu::DepthBiasState::default(),
                 }),
@@ -572,20 +456,41 @@ impl SceneRenderer {
                 PointSource::Storage => &[],
                 PointSource::Instanced => &instanced,
             },
+            false,
         );
-        // A segment is two consecutive `LineVertex` (2 × 16 bytes).
+        // A segment is two consecutive `LineVertex` (2 × 20 bytes).
+        let segment = [Some(wgpu::VertexBufferLayout {
+            array_stride: 40,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &wgpu::vertex_attr_array![
+                0 => Float32x3, 1 => Unorm8x4, 2 => Float32,
+                3 => Float32x3, 4 => Unorm8x4, 5 => Float32
+            ],
+        })];
+        let layout = &lines_pipeline_layout;
         let lines = pipeline(
             "mlod viewport lines",
-            &lines_pipeline_layout,
+            layout,
             "vs_line",
             "fs_line",
-            &[Some(wgpu::VertexBufferLayout {
-                array_stride: 32,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &wgpu::vertex_attr_array![
-                    0 => Float32x3, 1 => Unorm8x4, 2 => Float32x3, 3 => Unorm8x4
-                ],
-            })],
+            &segment,
+            false,
+        );
+        let overlay_outline = pipeline(
+            "mlod viewport box outlines",
+            layout,
+            "vs_line_outline",
+            "fs_line",
+            &segment,
+            true,
+        );
+        let overlay = pipeline(
+            "mlod viewport boxes",
+            layout,
+            "vs_line",
+            "fs_line",
+            &segment,
+            true,
         );
         Self {
             sample_count,
@@ -594,6 +499,8 @@ impl SceneRenderer {
             points_layout,
             points,
             lines,
+            overlay_outline,
+            overlay,
             blit: egui.map(|egui| BlitPipeline::new(device, egui)),
             scenes: HashMap::new(),
             targets: HashMap::new(),
@@ -641,7 +548,7 @@ impl SceneRenderer {
         let buffers = self
             .scenes
             .entry(scene.id())
-            .or_insert_with(|| SceneBuffers::new(source));
+            .or_insert_with(|| SceneBuffers::new(source.buffer_usage()));
         buffers.sync(device, queue, self.points_layout.as_ref(), self.max_points, scene);
 
         self.frame += 1;
@@ -703,10 +610,11 @@ impl SceneRenderer {
                 multiview_mask: None,
             });
             pass.set_bind_group(0, &target.uniform_bind_group, &[]);
-            if let (Some(lines), true) = (buffers.lines.slice(), buffers.segments > 0) {
+            let lines = buffers.lines.slice().filter(|_| buffers.segments > 0);
+            if let (Some(lines), true) = (lines, buffers.overlay_from > 0) {
                 pass.set_pipeline(&self.lines);
                 pass.set_vertex_buffer(0, lines);
-                pass.draw(0..6, 0..buffers.segments);
+                pass.draw(0..6, 0..buffers.overlay_from);
             }
             if buffers.points > 0 {
                 match (self.source, &buffers.points_bind_group) {
@@ -726,6 +634,14 @@ impl SceneRenderer {
                         }
                     }
                     (PointSource::Storage, None) => {}
+                }
+            }
+            // Boxes last, over everything: all outlines first so that no outline cuts a colour.
+            if let (Some(lines), true) = (lines, buffers.overlay_from < buffers.segments) {
+                pass.set_vertex_buffer(0, lines);
+                for pipeline in [&self.overlay_outline, &self.overlay] {
+                    pass.set_pipeline(pipeline);
+                    pass.draw(0..6, buffers.overlay_from..buffers.segments);
                 }
             }
         }

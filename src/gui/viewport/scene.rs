@@ -14,7 +14,7 @@ use super::ViewportError;
 /// One end of a line segment. Lines come in pairs: vertices `2k` and `2k + 1` form segment `k`.
 ///
 /// Keep in sync with the instance attributes of `vs_line` in `scene.wgsl` (a segment is read as
-/// two consecutive `LineVertex`, 32 bytes).
+/// two consecutive `LineVertex`, 40 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LineVertex {
@@ -22,12 +22,24 @@ pub struct LineVertex {
     pub pos: [f32; 3],
     /// sRGB colour with alpha (alpha is ignored: lines are opaque).
     pub color: [u8; 4],
+    /// Width as a multiple of the view's line width (a segment takes its first vertex's).
+    pub width: f32,
 }
-const _: () = assert!(std::mem::size_of::<LineVertex>() == 16);
+const _: () = assert!(std::mem::size_of::<LineVertex>() == 20);
 
 impl LineVertex {
+    /// A vertex of the view's line width.
     pub const fn new(pos: [f32; 3], color: [u8; 4]) -> Self {
-        Self { pos, color }
+        Self {
+            pos,
+            color,
+            width: 1.0,
+        }
+    }
+
+    /// The same vertex, `width` times the view's line width.
+    pub const fn with_width(self, width: f32) -> Self {
+        Self { width, ..self }
     }
 }
 
@@ -49,6 +61,8 @@ pub struct SceneHandle {
     positions: Arc<[[f32; 3]]>,
     colors: Arc<[[u8; 4]]>,
     lines: Arc<[LineVertex]>,
+    /// Line vertices from this index on are boxes: drawn over the points with a dark outline.
+    overlay_from: usize,
     positions_generation: u64,
     colors_generation: u64,
     lines_generation: u64,
@@ -70,6 +84,7 @@ impl SceneHandle {
             positions: Arc::from(Vec::new()),
             colors: Arc::from(Vec::new()),
             lines: Arc::from(Vec::new()),
+            overlay_from: 0,
             positions_generation: generation,
             colors_generation: generation,
             lines_generation: generation,
@@ -112,11 +127,27 @@ impl SceneHandle {
         Ok(())
     }
 
-    /// Replaces the line segments (pairs of vertices; an odd last vertex is ignored).
+    /// Replaces the line segments (pairs of vertices; an odd last vertex is ignored), all drawn
+    /// in depth with the points (a grid, axes).
     pub fn set_lines(&mut self, lines: impl Into<Arc<[LineVertex]>>) {
+        let lines = lines.into();
+        let n = lines.len();
+        self.set_lines_with_overlay(lines, n);
+    }
+
+    /// Replaces the line segments: those before vertex `overlay_from` in depth with the points
+    /// (the grid), those from it on (boxes) over the points, each on a dark outline.
+    pub fn set_lines_with_overlay(&mut self, lines: impl Into<Arc<[LineVertex]>>, overlay_from: usize) {
         self.lines = lines.into();
+        // A whole number of segments before the overlay.
+        self.overlay_from = overlay_from.min(self.lines.len()) & !1;
         self.lines_generation = next_generation();
         self.update_radius();
+    }
+
+    /// The first line vertex drawn over the points.
+    pub fn overlay_from(&self) -> usize {
+        self.overlay_from
     }
 
     pub fn points(&self) -> &[[f32; 3]] {
@@ -160,15 +191,26 @@ impl SceneHandle {
     }
 }
 
+/// Width of the grid's lines, as a multiple of the view's line width (boxes are 1).
+pub const GRID_WIDTH: f32 = 0.45;
+
 /// A ground grid on the plane `z = ground_z_m`: rings every `ring_step_m` metres out to
 /// `radius_m` (every fifth ring brighter), faint radial spokes every 30°, and the base frame's
-/// axes (+x reddish, +y greenish) so the user always knows which way the car faces.
+/// axes (+x and +y in neutral greys: red and green are box colours), thinner than box lines.
 pub fn grid_lines(radius_m: f32, ring_step_m: f32, ground_z_m: f32) -> Vec<LineVertex> {
+    let mut out = grid_segments(radius_m, ring_step_m, ground_z_m);
+    for v in &mut out {
+        v.width = GRID_WIDTH;
+    }
+    out
+}
+
+fn grid_segments(radius_m: f32, ring_step_m: f32, ground_z_m: f32) -> Vec<LineVertex> {
     const RING: [u8; 4] = [58, 64, 76, 255];
     const RING_MAJOR: [u8; 4] = [86, 94, 110, 255];
     const SPOKE: [u8; 4] = [46, 51, 61, 255];
-    const X_AXIS: [u8; 4] = [170, 80, 80, 255];
-    const Y_AXIS: [u8; 4] = [80, 150, 90, 255];
+    const X_AXIS: [u8; 4] = [150, 150, 160, 255];
+    const Y_AXIS: [u8; 4] = [110, 110, 120, 255];
     let mut out = Vec::new();
     if !(radius_m.is_finite() && ring_step_m.is_finite() && radius_m > 0.0 && ring_step_m > 0.0) {
         return out;
@@ -208,6 +250,44 @@ pub fn grid_lines(radius_m: f32, ring_step_m: f32, ground_z_m: f32) -> Vec<LineV
     out.push(LineVertex::new([0.0, 0.0, z], Y_AXIS));
     out.push(LineVertex::new([0.0, radius_m, z], Y_AXIS));
     out
+}
+
+/// The ego vehicle on the ground plane `z = ground_z_m`: its outline (a 4.7 × 1.9 m rectangle
+/// centred on the base frame's origin, turned by `heading`, the yaw of the car's forward
+/// direction in the base frame) and an arrow `arrow_m` long from its front along its forward
+/// direction. Returns the lines and the arrow's tip (where a "forward" label goes).
+pub fn ego_lines(heading: f32, ground_z_m: f32, arrow_m: f32) -> (Vec<LineVertex>, [f32; 3]) {
+    const EGO: [u8; 4] = [215, 215, 225, 255];
+    let (s, c) = if heading.is_finite() {
+        heading.sin_cos()
+    } else {
+        (0.0, 1.0)
+    };
+    let z = ground_z_m;
+    let at = |fwd: f32, left: f32| [fwd * c - left * s, fwd * s + left * c, z];
+    let (half_l, half_w) = (2.35, 0.95);
+    let outline = [
+        at(half_l, half_w),
+        at(-half_l, half_w),
+        at(-half_l, -half_w),
+        at(half_l, -half_w),
+    ];
+    let mut out = Vec::new();
+    let mut seg = |a: [f32; 3], b: [f32; 3]| {
+        out.push(LineVertex::new(a, EGO).with_width(0.8));
+        out.push(LineVertex::new(b, EGO).with_width(0.8));
+    };
+    for k in 0..4 {
+        seg(outline[k], outline[(k + 1) % 4]);
+    }
+    // The windscreen, so that the outline alone says which end is the front.
+    seg(at(0.9, half_w), at(0.9, -half_w));
+    let tip_fwd = half_l + arrow_m.max(0.5);
+    let tip = at(tip_fwd, 0.0);
+    seg(at(half_l, 0.0), tip);
+    seg(tip, at(tip_fwd - 1.2, 0.7));
+    seg(tip, at(tip_fwd - 1.2, -0.7));
+    (out, tip)
 }
 
 /// The 12 edges of a box as line pairs, plus (when `heading`) a cross on the front face and a
@@ -279,5 +359,18 @@ mod tests {
         let corners = [[0.0; 3]; 8];
         assert_eq!(box_lines(corners, [0, 255, 0, 255], false).len(), 24);
         assert_eq!(box_lines(corners, [0, 255, 0, 255], true).len(), 30);
+        let (ego, tip) = ego_lines(std::f32::consts::PI, -1.8, 6.0);
+        assert_eq!(ego.len() % 2, 0);
+        assert!(tip[0] < -8.0 && tip[1].abs() < 1e-4, "forward along -x: {tip:?}");
+    }
+
+    #[test]
+    fn the_overlay_starts_on_a_segment_boundary() {
+        let mut scene = SceneHandle::new();
+        let v = LineVertex::new([0.0; 3], [1, 1, 1, 255]);
+        scene.set_lines_with_overlay(vec![v; 6], 3);
+        assert_eq!(scene.overlay_from(), 2);
+        scene.set_lines(vec![v; 4]);
+        assert_eq!(scene.overlay_from(), 4, "plain lines are all drawn in depth");
     }
 }

@@ -11,7 +11,9 @@ struct FrameUniforms {
     near_w: f32,
     // 1 when the target is multisampled and coverage goes to alpha-to-coverage.
     alpha_to_coverage: u32,
-    _pad: vec2<f32>,
+    // The dark rim around box lines, pixels on each side.
+    outline_px: f32,
+    _pad: f32,
 };
 
 @group(0) @binding(0) var<uniform> u: FrameUniforms;
@@ -85,22 +87,29 @@ fn fs_point(in: PointOut) -> @location(0) vec4<f32> {
 
 // ---------------------------------------------------------------------------------------------
 // Lines: one instance per segment (two consecutive LineVertex), expanded into a quad of constant
-// pixel width, extended by half the width at both ends so that box corners close.
+// pixel width (the view's line width times the vertex's width factor), extended by half the width
+// at both ends so that box corners close. The outline variant draws the same quad wider by the
+// rim on each side, in a dark colour, under the coloured one.
 
 struct LineOut {
     @builtin(position) position: vec4<f32>,
     @location(0) color: vec4<f32>,
     // Signed distance from the centre line in pixels.
     @location(1) side_px: f32,
+    // Half the drawn width in pixels.
+    @location(2) @interpolate(flat) half_width_px: f32,
 };
 
-@vertex
-fn vs_line(
-    @builtin(vertex_index) vertex_index: u32,
-    @location(0) pos_a: vec3<f32>,
-    @location(1) color_a: vec4<f32>,
-    @location(2) pos_b: vec3<f32>,
-    @location(3) color_b: vec4<f32>,
+const OUTLINE_COLOR: vec4<f32> = vec4<f32>(0.02, 0.02, 0.03, 1.0);
+
+fn expand_line(
+    vertex_index: u32,
+    pos_a: vec3<f32>,
+    color_a: vec4<f32>,
+    width_a: f32,
+    pos_b: vec3<f32>,
+    color_b: vec4<f32>,
+    extra_px: f32,
 ) -> LineOut {
     var out: LineOut;
     var a = u.view_proj * vec4<f32>(pos_a, 1.0);
@@ -130,17 +139,48 @@ fn vs_line(
     // corner.x: -1 = end a, +1 = end b; corner.y: side of the line.
     let at_b = corner.x > 0.0;
     let end = select(a, b, at_b);
-    let hw = u.line_half_width_px + 0.5;
+    // One width per segment (its first vertex's), so that both ends match.
+    let half_width = u.line_half_width_px * max(width_a, 0.0) + extra_px;
+    let hw = half_width + 0.5;
     let offset_px = normal * corner.y * hw + dir * corner.x * hw;
     out.position = end + vec4<f32>(offset_px / half_viewport * end.w, 0.0, 0.0);
     out.color = select(color_a, color_b, at_b);
     out.side_px = corner.y * hw;
+    out.half_width_px = half_width;
+    return out;
+}
+
+@vertex
+fn vs_line(
+    @builtin(vertex_index) vertex_index: u32,
+    @location(0) pos_a: vec3<f32>,
+    @location(1) color_a: vec4<f32>,
+    @location(2) width_a: f32,
+    @location(3) pos_b: vec3<f32>,
+    @location(4) color_b: vec4<f32>,
+    @location(5) width_b: f32,
+) -> LineOut {
+    return expand_line(vertex_index, pos_a, color_a, width_a, pos_b, color_b, 0.0);
+}
+
+@vertex
+fn vs_line_outline(
+    @builtin(vertex_index) vertex_index: u32,
+    @location(0) pos_a: vec3<f32>,
+    @location(1) color_a: vec4<f32>,
+    @location(2) width_a: f32,
+    @location(3) pos_b: vec3<f32>,
+    @location(4) color_b: vec4<f32>,
+    @location(5) width_b: f32,
+) -> LineOut {
+    var out = expand_line(vertex_index, pos_a, color_a, width_a, pos_b, color_b, u.outline_px);
+    out.color = OUTLINE_COLOR;
     return out;
 }
 
 @fragment
 fn fs_line(in: LineOut) -> @location(0) vec4<f32> {
-    let coverage = clamp(u.line_half_width_px + 0.5 - abs(in.side_px), 0.0, 1.0);
+    let coverage = clamp(in.half_width_px + 0.5 - abs(in.side_px), 0.0, 1.0);
     if !keep(coverage) {
         discard;
     }
