@@ -5,8 +5,10 @@
 //!   native trainer (`src/detect/native/`, the default of `mlod train stage1`), on candle's
 //!   autograd with the gemm convolutions (`src/detect/fastconv.rs`) and with candle's own
 //!   (`--slow-autograd`);
-//! - `refiner/candle`: the stage-2 PointNet (default configuration) on 32 proposals × 1024
-//!   seeded random points (the trainer's batch).
+//! - `refiner/native` and `refiner/candle`: the stage-2 PointNet (default configuration) on 32
+//!   proposals × 1024 seeded random points (the trainer's batch), on the native trainer
+//!   (`src/refine/native.rs`, the default of `mlod train refiner`) and on candle's autograd
+//!   (`--slow-autograd`).
 use candle_core::{Device, Tensor};
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
@@ -74,6 +76,20 @@ fn bench_refiner(c: &mut Criterion) {
     let mut opt = AdamW::for_varmap(&varmap, 0.01).expect("optimiser");
     let mut g = c.benchmark_group("train_step_refiner");
     g.sample_size(10);
+    {
+        let (_, vm) = RefinerNet::trainable(&cfg, 1).expect("network");
+        let nopt = AdamW::for_varmap(&vm, 0.01).expect("optimiser");
+        let mut native = mlod::refine::native::NativeRefiner::new(&cfg, &vm, &nopt).expect("trainer");
+        let pts: Vec<f32> = points.flatten_all().expect("points").to_vec1().expect("points");
+        let prs: Vec<f32> = props.flatten_all().expect("props").to_vec1().expect("props");
+        g.bench_function("native", |bch| {
+            bch.iter(|| {
+                native
+                    .step(&pts, &prs, &targets, &max_trace, 1e-4, 10.0)
+                    .expect("step")
+            })
+        });
+    }
     g.bench_function("candle", |bch| {
         bch.iter(|| {
             let out = net.forward_t(&points, b, n, &props, true).expect("forward");

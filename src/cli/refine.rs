@@ -76,6 +76,10 @@ pub struct RefinerArgs {
     /// Print a loss line every N steps.
     #[arg(long, default_value_t = 50)]
     log_every: u64,
+    /// Train on candle's autograd graph (the reference path, ~15x slower) instead of the native
+    /// trainer; for comparison.
+    #[arg(long)]
+    slow_autograd: bool,
 }
 
 pub fn proposals(a: ProposalsArgs) -> Result<()> {
@@ -116,6 +120,12 @@ pub fn refiner(a: RefinerArgs, command: String) -> Result<()> {
     cfg.model.gather.features.intensity = a.extra_features;
     cfg.model.gather.features.lidar = a.extra_features;
     cfg.command = command;
+    cfg.slow_autograd = a.slow_autograd;
+    // One candle thread beside rayon's unless the user chose (as `mlod train stage1` does): the
+    // native step runs no candle op, and candle's spinning pool would fight rayon's on 2 cores.
+    if !a.slow_autograd && std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
     let every = a.log_every.max(1);
     let s = train_refiner(&cfg, |r| {
         if r.step % every == 0 {

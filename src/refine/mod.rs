@@ -7,7 +7,8 @@
 //! - [`points`]: the points of a proposal — one spatial index of the cloud per frame, the enlarged
 //!   box, eq. 12–13's canonical frame, the seeded draw of a fixed number of points.
 //! - [`coding`]: eq. 14 and its inverse.
-//! - [`net`]: the network in candle (training); [`infer`]: the same folded for inference, with the
+//! - [`net`]: the network in candle (training); [`native`]: its training step written out over
+//!   flat buffers (the default of `mlod train refiner`); [`infer`]: the same folded for inference, with the
 //!   max-pool's arg-max (the active points of §V-C).
 //! - [`loss`]: proposal targets (IoU > 0.6 / < 0.45) and eq. 15–17.
 //! - [`proposals`]: the proposal database training reads (stage 1 run once per sample, case, α and
@@ -20,6 +21,7 @@ pub mod coding;
 pub mod infer;
 pub mod loss;
 pub mod model;
+pub mod native;
 pub mod net;
 pub mod points;
 pub mod proposals;

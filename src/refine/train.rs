@@ -14,7 +14,9 @@
 //!   up to ±3° about z; the label and the residuals are computed on the augmented boxes. Then
 //!   `points` rows are drawn (re-sampled every step).
 //! - Loss eq. 17 ([`super::loss`]), AdamW (lr warm-up then cosine decay, weight decay 0.01,
-//!   gradient-norm clip 10), BatchNorm in training mode.
+//!   gradient-norm clip 10), BatchNorm in training mode. The step runs on the native trainer
+//!   ([`super::native`]: forward, backward and AdamW over flat buffers) unless `slow_autograd`
+//!   asks for candle's autograd graph; both compute the same step to float rounding.
 //! - Checkpoints (weights, moments, step, elapsed, loss rows) are written atomically every few
 //!   minutes and at the end; `resume` continues from one exactly as if uninterrupted.
 //! - At the end: the weights (with the configuration in their metadata) and the `refiner` entry of
@@ -31,6 +33,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::loss::{loss, Target, NEGATIVE_IOU, POSITIVE_IOU};
+use super::native::{NativeRefiner, RefinerTerms};
 use super::net::{proposal_features, RefinerConfig, RefinerNet, PROPOSAL_FEATURES};
 use super::points::{push_row, sample, CloudIndex, ProposalPoints};
 use super::proposals::{load, ProposalEntry};
@@ -66,6 +69,8 @@ pub struct RefineTrainConfig {
     pub command: String,
     /// Stop after this many steps with a checkpoint and no final weights, as a kill would (tests).
     pub stop_after: Option<u64>,
+    /// Train on candle's autograd graph instead of the native trainer ([`super::native`]).
+    pub slow_autograd: bool,
 }
 
 impl RefineTrainConfig {
@@ -88,6 +93,7 @@ impl RefineTrainConfig {
             model: RefinerConfig::default(),
             command: String::new(),
             stop_after: None,
+            slow_autograd: false,
         }
     }
 
@@ -478,6 +484,12 @@ pub fn train_refiner(
     let mut epoch = u64::MAX;
     let mut order = Vec::new();
     let mut final_loss = f32::NAN;
+    // The native path (the default) or candle's autograd graph (`--slow-autograd`); the native
+    // trainer writes its state back into `varmap` and `opt` before every checkpoint.
+    let mut native = match cfg.slow_autograd {
+        true => None,
+        false => Some(NativeRefiner::new(&cfg.model, &varmap, &opt)?),
+    };
     while ck.step < cfg.steps {
         let step = ck.step;
         let e = step / entries.len() as u64;
@@ -492,14 +504,31 @@ pub fn train_refiner(
             continue;
         };
         let b = batch.targets.len();
-        let out = net.forward_t(&batch.points, b, n, &batch.props, true)?;
-        let l = loss(&out, &batch.targets, &batch.max_trace)?;
-        let grads = l.total.backward()?;
         let lr = cfg.lr_at(step);
-        let grad_norm = opt.update(&grads, lr, 10.0)?;
+        let (l, grad_norm) = match native.as_mut() {
+            Some(nt) => {
+                let points = batch.points.flatten_all()?.to_vec1::<f32>()?;
+                let props = batch.props.flatten_all()?.to_vec1::<f32>()?;
+                let s = nt.step(&points, &props, &batch.targets, &batch.max_trace, lr, 10.0)?;
+                (s.loss, s.grad_norm)
+            }
+            None => {
+                let out = net.forward_t(&batch.points, b, n, &batch.props, true)?;
+                let l = loss(&out, &batch.targets, &batch.max_trace)?;
+                let grad_norm = opt.update(&l.total.backward()?, lr, 10.0)?;
+                let terms = RefinerTerms {
+                    total: l.total.to_scalar()?,
+                    reg: l.reg,
+                    cls: l.cls,
+                    uct: l.uct,
+                    positives: l.positives,
+                };
+                (terms, grad_norm)
+            }
+        };
         let rec = RefineStep {
             step,
-            loss: l.total.to_scalar()?,
+            loss: l.total,
             reg: l.reg,
             cls: l.cls,
             uct: l.uct,
@@ -514,6 +543,9 @@ pub fn train_refiner(
         ck.step += 1;
         on_step(&rec);
         if cfg.stop_after.is_some_and(|k| ck.step >= k) {
+            if let Some(nt) = &native {
+                nt.store(&varmap, &mut opt)?;
+            }
             ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
             save_checkpoint(cfg, &varmap, &opt, &ck)?;
             return Err(RefineError::BadParameter(format!(
@@ -522,10 +554,16 @@ pub fn train_refiner(
             )));
         }
         if last_ckpt.elapsed().as_secs_f64() >= cfg.checkpoint_every_s {
+            if let Some(nt) = &native {
+                nt.store(&varmap, &mut opt)?;
+            }
             ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
             save_checkpoint(cfg, &varmap, &opt, &ck)?;
             last_ckpt = Instant::now();
         }
+    }
+    if let Some(nt) = &native {
+        nt.store(&varmap, &mut opt)?;
     }
     ck.elapsed_s = base_elapsed + start.elapsed().as_secs_f64();
     save_checkpoint(cfg, &varmap, &opt, &ck)?;

@@ -14,7 +14,7 @@ const BN_MOMENTUM: f32 = 0.1;
 
 /// A tensor of the network: its value and, for trainable ones, the gradient of the last step.
 #[derive(Debug, Clone)]
-pub(super) struct Param {
+pub(crate) struct Param {
     pub name: String,
     pub shape: Vec<usize>,
     pub value: Vec<f32>,
@@ -27,7 +27,7 @@ pub(super) struct Param {
 /// Σ v, accumulated in f64 over eight lanes (vectorised; the same order at every call).
 /// BatchNorm's sums need the wider accumulator: over a sparse BEV channel (most cells one constant
 /// value) f32 lanes lose enough of the mean that the gradients of the layers below drift by 1e-3.
-fn sum8(v: &[f32]) -> f32 {
+pub(crate) fn sum8(v: &[f32]) -> f32 {
     sum8_by(v, |x| x as f64) as f32
 }
 
@@ -64,7 +64,7 @@ fn sum8_by(v: &[f32], f: impl Fn(f32) -> f64) -> f64 {
 
 /// BatchNorm (batch statistics) + ReLU over `c` channels of `p` pixels, and its buffers.
 #[derive(Debug)]
-pub(super) struct BnRelu {
+pub(crate) struct BnRelu {
     gamma: usize,
     beta: usize,
     running_mean: usize,
@@ -101,7 +101,7 @@ impl BnRelu {
         }
     }
 
-    fn forward(&mut self, params: &[Param], stats: &mut [Param]) {
+    pub fn forward(&mut self, params: &[Param], stats: &mut [Param]) {
         let p = self.p;
         let (gamma, beta) = (&params[self.gamma].value, &params[self.beta].value);
         self.y
@@ -134,7 +134,7 @@ impl BnRelu {
     }
 
     /// ∂L/∂out → ∂L/∂y in `dout`; γ's and β's gradients.
-    fn backward(&mut self, params: &mut [Param]) {
+    pub fn backward(&mut self, params: &mut [Param]) {
         let (p, c) = (self.p, self.c);
         let mut dg = vec![0f32; c];
         let mut db = vec![0f32; c];

@@ -22,7 +22,7 @@ pub struct LossTerms {
 
 /// Focal loss (α = 0.25, γ = 2) of one logit and its derivative, as the candle graph computes it:
 /// ce = relu(x) − x·t + ln(1 + e^{−|x|}), p_t = p t + (1 − p)(1 − t), loss = α_t (1 − p_t)² ce.
-fn focal(x: f32, t: f32) -> (f32, f32) {
+pub(crate) fn focal(x: f32, t: f32) -> (f32, f32) {
     let ce = x.max(0.0) - x * t + (1.0 + (-x.abs()).exp()).ln();
     let p = 1.0 / (1.0 + (-x).exp());
     let p_t = p * t + (1.0 - p) * (1.0 - t);
@@ -35,7 +35,7 @@ fn focal(x: f32, t: f32) -> (f32, f32) {
 }
 
 /// Smooth-L1 of `d` and its derivative.
-fn smooth_l1(d: f32) -> (f32, f32) {
+pub(crate) fn smooth_l1(d: f32) -> (f32, f32) {
     let a = d.abs();
     let sign = if d >= 0.0 { 1.0 } else { -1.0 };
     if a < BETA {

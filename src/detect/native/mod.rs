@@ -14,17 +14,17 @@
 //! Work is parallel over rayon's threads (gemm's blocks, one channel per task elsewhere) and
 //! every reduction runs in a fixed order, so a step is deterministic for a given thread count.
 
-mod layers;
+pub(crate) mod layers;
 pub mod loss;
+pub(crate) mod state;
 #[cfg(test)]
 mod tests;
 
 use std::collections::HashMap;
 
-use candle_core::{Device, Tensor};
-
 use self::layers::{ConvBn, DeconvBn, Heads, Param};
 use self::loss::{loss_and_grad, LossTerms};
+use self::state::{params_of, stats_of, store_stats, FlatAdamW};
 use super::fastconv::Geom;
 use super::model::Stage1Model;
 use super::net::branch_prefix;
@@ -54,13 +54,7 @@ pub struct NativeTrainer {
     params: Vec<Param>,
     /// BatchNorm's running statistics.
     stats: Vec<Param>,
-    m: Vec<Vec<f32>>,
-    v: Vec<Vec<f32>>,
-    step: u64,
-    beta1: f64,
-    beta2: f64,
-    eps: f64,
-    weight_decay: f64,
+    adam: FlatAdamW,
     branches: Vec<Branch>,
     /// Running maxima over the present branches (Feature Fusion), and ∂L/∂(fused map).
     fused: Vec<Vec<f32>>,
@@ -71,10 +65,6 @@ pub struct NativeTrainer {
     up2: DeconvBn,
     heads: Heads,
     anchors_per_cell: usize,
-}
-
-fn tensor_values(t: &Tensor) -> candle_core::Result<(Vec<usize>, Vec<f32>)> {
-    Ok((t.dims().to_vec(), t.flatten_all()?.to_vec1::<f32>()?))
 }
 
 /// Looks tensors up by name.
@@ -135,43 +125,9 @@ impl NativeTrainer {
             .varmap
             .as_ref()
             .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
-        let mut params = Vec::with_capacity(opt.params.len());
-        for (name, var) in &opt.params {
-            let (shape, value) = tensor_values(var.as_tensor())?;
-            let grad = vec![0.0; value.len()];
-            params.push(Param {
-                name: name.clone(),
-                shape,
-                value,
-                grad,
-                has_grad: false,
-            });
-        }
-        let mut stats = Vec::new();
-        {
-            let data = varmap
-                .data()
-                .lock()
-                .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
-            let mut names: Vec<&String> = data.keys().filter(|k| k.contains("running")).collect();
-            names.sort();
-            for name in names {
-                if let Some(var) = data.get(name) {
-                    let (shape, value) = tensor_values(var.as_tensor())?;
-                    stats.push(Param {
-                        name: name.clone(),
-                        shape,
-                        value,
-                        grad: Vec::new(),
-                        has_grad: false,
-                    });
-                }
-            }
-        }
-        let moments = |ts: &[Tensor]| -> candle_core::Result<Vec<Vec<f32>>> {
-            ts.iter().map(|t| t.flatten_all()?.to_vec1::<f32>()).collect()
-        };
-        let (m, v) = (moments(&opt.m)?, moments(&opt.v)?);
+        let params = params_of(opt)?;
+        let stats = stats_of(varmap)?;
+        let adam = FlatAdamW::of(opt)?;
         let names = Names {
             params: params
                 .iter()
@@ -245,13 +201,7 @@ impl NativeTrainer {
         Ok(Self {
             params,
             stats,
-            m,
-            v,
-            step: opt.step,
-            beta1: opt.beta1,
-            beta2: opt.beta2,
-            eps: opt.eps,
-            weight_decay: opt.weight_decay,
+            adam,
             branches,
             fused,
             dfused: vec![0.0; mid],
@@ -445,74 +395,18 @@ impl NativeTrainer {
     /// AdamW over the tensors the last step reached, as [`AdamW::update`] computes it; the
     /// gradient norm before clipping.
     pub fn update(&mut self, lr: f64, clip: f64) -> Result<f64, DetectError> {
-        let sq: f64 = self
-            .params
-            .iter()
-            .filter(|p| p.has_grad)
-            .map(|p| p.grad.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>())
-            .sum();
-        let norm = sq.sqrt();
-        if !norm.is_finite() {
-            return Err(DetectError::BadParameter(format!("gradient norm is {norm}")));
-        }
-        let scale = if norm > clip { (clip / norm) as f32 } else { 1.0 };
-        self.step += 1;
-        let t = self.step as i32;
-        let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
-        let (c1, c2) = ((1.0 - self.beta1) as f32, (1.0 - self.beta2) as f32);
-        let inv_bc1 = (1.0 / (1.0 - self.beta1.powi(t))) as f32;
-        let inv_bc2 = (1.0 / (1.0 - self.beta2.powi(t))) as f32;
-        let (eps, decay, lr32) = (self.eps as f32, (1.0 - lr * self.weight_decay) as f32, lr as f32);
-        for ((p, m), v) in self.params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
-            if !p.has_grad {
-                continue;
-            }
-            for (((w, &g), m), v) in p
-                .value
-                .iter_mut()
-                .zip(&p.grad)
-                .zip(m.iter_mut())
-                .zip(v.iter_mut())
-            {
-                let g = g * scale;
-                *m = *m * b1 + g * c1;
-                *v = *v * b2 + g * g * c2;
-                let upd = (*m * inv_bc1) / ((*v * inv_bc2).sqrt() + eps);
-                *w = *w * decay - upd * lr32;
-            }
-        }
-        Ok(norm)
+        self.adam.update(&mut self.params, lr, clip)
     }
 
     /// Writes the weights and running statistics into `model`'s variables and the moments and
     /// step count into `opt` (before a checkpoint or the final weights are written).
     pub fn store(&self, model: &Stage1Model, opt: &mut AdamW) -> Result<(), DetectError> {
-        let dev = Device::Cpu;
-        if opt.params.len() != self.params.len() {
-            return Err(DetectError::BadParameter(
-                "the optimiser does not fit the trainer".into(),
-            ));
-        }
-        for (k, (p, (_, var))) in self.params.iter().zip(&opt.params).enumerate() {
-            var.set(&Tensor::from_slice(&p.value, p.shape.as_slice(), &dev)?)?;
-            opt.m[k] = Tensor::from_slice(&self.m[k], p.shape.as_slice(), &dev)?;
-            opt.v[k] = Tensor::from_slice(&self.v[k], p.shape.as_slice(), &dev)?;
-        }
-        opt.step = self.step;
+        self.adam.store(&self.params, opt)?;
         let varmap = model
             .varmap
             .as_ref()
             .ok_or_else(|| DetectError::BadParameter("model is not trainable".into()))?;
-        let data = varmap
-            .data()
-            .lock()
-            .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
-        for s in &self.stats {
-            if let Some(var) = data.get(&s.name) {
-                var.set(&Tensor::from_slice(&s.value, s.shape.as_slice(), &dev)?)?;
-            }
-        }
-        Ok(())
+        store_stats(varmap, &self.stats)
     }
 
     /// The gradient of tensor `name` from the last step, if the step reached it.

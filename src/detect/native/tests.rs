@@ -8,7 +8,7 @@ use crate::detect::model::bev_tensor;
 use crate::detect::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1, Stage1Net};
 use crate::detect::train::{compute_loss_with, prepare_sample};
 use crate::detect::{Case, ModelConfig};
-use candle_core::DType;
+use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 
 fn sample_for(model: &Stage1Model, index: usize) -> PreparedSample {
@@ -252,8 +252,8 @@ fn training_follows_candle_and_stores_loadable_weights() {
     for p in &native.params {
         assert_eq!(again.value(&p.name).unwrap(), p.value.as_slice(), "{}", p.name);
     }
-    assert_eq!(again.step, native.step);
-    assert_eq!(again.m, native.m);
+    assert_eq!(again.adam.step, native.adam.step);
+    assert_eq!(again.adam.m, native.adam.m);
     let bytes = model
         .to_safetensors(Default::default(), Default::default())
         .unwrap();
