@@ -22,8 +22,6 @@
 #[cfg(test)]
 mod tests;
 
-use std::collections::HashMap;
-
 use candle_nn::VarMap;
 use rayon::prelude::*;
 
@@ -34,7 +32,7 @@ use super::RefineError;
 use crate::detect::fastconv::{gemm_into, Mat};
 use crate::detect::native::layers::{sum8, BnRelu, Param};
 use crate::detect::native::loss::{focal, smooth_l1};
-use crate::detect::native::state::{params_of, stats_of, store_stats, FlatAdamW};
+use crate::detect::native::state::{params_of, stats_of, store_stats, FlatAdamW, TensorIndex};
 use crate::detect::optim::AdamW;
 
 /// The loss terms of one step, as the trainer logs them (eq. 17).
@@ -185,55 +183,37 @@ fn bad(what: String) -> RefineError {
     RefineError::BadParameter(format!("native refiner trainer: {what}"))
 }
 
-struct Names<'a> {
-    index: HashMap<&'a str, usize>,
-    stats: HashMap<&'a str, usize>,
-    params: &'a [Param],
+/// (weight, bias) of the Linear `prefix`, checked to be `cout × cin`.
+fn linear(names: &TensorIndex, prefix: &str, cin: usize, cout: usize) -> Result<(usize, usize), RefineError> {
+    let weight = format!("{prefix}.weight");
+    let bias = format!("{prefix}.bias");
+    let (ws, bs) = (names.shape(&weight)?, names.shape(&bias)?);
+    if ws != [cout, cin] || bs != [cout] {
+        return Err(bad(format!(
+            "{prefix}: shapes {ws:?}, {bs:?}, expected [{cout}, {cin}], [{cout}]"
+        )));
+    }
+    Ok((names.param(&weight)?, names.param(&bias)?))
 }
 
-impl Names<'_> {
-    fn param(&self, name: &str) -> Result<usize, RefineError> {
-        self.index
-            .get(name)
-            .copied()
-            .ok_or_else(|| bad(format!("no tensor {name}")))
-    }
-
-    fn stat(&self, name: &str) -> Result<usize, RefineError> {
-        self.stats
-            .get(name)
-            .copied()
-            .ok_or_else(|| bad(format!("no tensor {name}")))
-    }
-
-    /// (weight, bias) of the Linear `prefix`, checked to be `cout × cin`.
-    fn linear(&self, prefix: &str, cin: usize, cout: usize) -> Result<(usize, usize), RefineError> {
-        let (w, b) = (
-            self.param(&format!("{prefix}.weight"))?,
-            self.param(&format!("{prefix}.bias"))?,
-        );
-        let (ws, bs) = (&self.params[w].shape, &self.params[b].shape);
-        if ws.as_slice() != [cout, cin] || bs.as_slice() != [cout] {
-            return Err(bad(format!(
-                "{prefix}: shapes {ws:?}, {bs:?}, expected [{cout}, {cin}], [{cout}]"
-            )));
-        }
-        Ok((w, b))
-    }
-
-    fn dense(&self, prefix: &str, cin: usize, cout: usize, relu: bool) -> Result<Dense, RefineError> {
-        let (weight, bias) = self.linear(prefix, cin, cout)?;
-        Ok(Dense {
-            weight,
-            bias,
-            cin,
-            cout,
-            relu,
-            z: Vec::new(),
-            out: Vec::new(),
-            dout: Vec::new(),
-        })
-    }
+fn dense(
+    names: &TensorIndex,
+    prefix: &str,
+    cin: usize,
+    cout: usize,
+    relu: bool,
+) -> Result<Dense, RefineError> {
+    let (weight, bias) = linear(names, prefix, cin, cout)?;
+    Ok(Dense {
+        weight,
+        bias,
+        cin,
+        cout,
+        relu,
+        z: Vec::new(),
+        out: Vec::new(),
+        dout: Vec::new(),
+    })
 }
 
 impl NativeRefiner {
@@ -243,19 +223,7 @@ impl NativeRefiner {
         let params = params_of(opt)?;
         let stats = stats_of(varmap)?;
         let adam = FlatAdamW::of(opt)?;
-        let names = Names {
-            index: params
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (p.name.as_str(), i))
-                .collect(),
-            stats: stats
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (p.name.as_str(), i))
-                .collect(),
-            params: &params,
-        };
+        let names = TensorIndex::new(&params, &stats);
         if cfg.point_mlp.is_empty() {
             return Err(bad(
                 "a point MLP without layers (train with --slow-autograd)".into()
@@ -266,13 +234,8 @@ impl NativeRefiner {
         let mut point = Vec::new();
         for (k, &cout) in cfg.point_mlp.iter().enumerate() {
             let p = format!("point.{k}");
-            let (weight, bias) = names.linear(&format!("{p}.lin"), cin, cout)?;
-            let bn_idx = [
-                names.param(&format!("{p}.bn.weight"))?,
-                names.param(&format!("{p}.bn.bias"))?,
-                names.stat(&format!("{p}.bn.running_mean"))?,
-                names.stat(&format!("{p}.bn.running_var"))?,
-            ];
+            let (weight, bias) = linear(&names, &format!("{p}.lin"), cin, cout)?;
+            let bn_idx = names.bn(&p)?;
             point.push(PointLayer {
                 weight,
                 bias,
@@ -285,15 +248,15 @@ impl NativeRefiner {
         }
         let width = cin;
         let pw = cfg.proposal_width;
-        let prop = names.dense("prop", PROPOSAL_FEATURES, pw, true)?;
+        let prop = dense(&names, "prop", PROPOSAL_FEATURES, pw, true)?;
         let mut c = width + pw;
         let mut head = Vec::new();
         for (k, &w) in cfg.head.iter().enumerate() {
-            head.push(names.dense(&format!("head.{k}"), c, w, true)?);
+            head.push(dense(&names, &format!("head.{k}"), c, w, true)?);
             c = w;
         }
-        let cls = names.dense("cls", c, 1, false)?;
-        let reg = names.dense("reg", c, RESIDUALS, false)?;
+        let cls = dense(&names, "cls", c, 1, false)?;
+        let reg = dense(&names, "reg", c, RESIDUALS, false)?;
         Ok(Self {
             params,
             stats,

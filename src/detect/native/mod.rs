@@ -18,13 +18,11 @@ pub(crate) mod layers;
 pub mod loss;
 pub(crate) mod state;
 #[cfg(test)]
-mod tests;
-
-use std::collections::HashMap;
+pub(crate) mod tests;
 
 use self::layers::{ConvBn, DeconvBn, Heads, Param};
 use self::loss::{loss_and_grad, LossTerms};
-use self::state::{params_of, stats_of, store_stats, FlatAdamW};
+use self::state::{params_of, stats_of, store_stats, FlatAdamW, TensorIndex};
 use super::fastconv::Geom;
 use super::model::Stage1Model;
 use super::net::branch_prefix;
@@ -67,55 +65,18 @@ pub struct NativeTrainer {
     anchors_per_cell: usize,
 }
 
-/// Looks tensors up by name.
-struct Names<'a> {
-    params: HashMap<&'a str, usize>,
-    stats: HashMap<&'a str, usize>,
-    all: &'a [Param],
-}
-
-impl Names<'_> {
-    fn param(&self, name: &str) -> Result<usize, DetectError> {
-        self.params
-            .get(name)
-            .copied()
-            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
+/// The conv + BN layer `prefix` on an input of `h × w`, with padding k/2.
+fn conv(names: &TensorIndex, prefix: &str, h: usize, w: usize, stride: usize) -> Result<ConvBn, DetectError> {
+    let name = format!("{prefix}.conv.weight");
+    let s = names.shape(&name)?;
+    let &[cout, cin, k, k2] = s else {
+        return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
+    };
+    if k != k2 {
+        return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
     }
-
-    fn stat(&self, name: &str) -> Result<usize, DetectError> {
-        self.stats
-            .get(name)
-            .copied()
-            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
-    }
-
-    fn shape(&self, name: &str) -> Result<&[usize], DetectError> {
-        Ok(&self.all[self.param(name)?].shape)
-    }
-
-    /// γ, β, running mean, running var of the BatchNorm under `prefix`.
-    fn bn(&self, prefix: &str) -> Result<[usize; 4], DetectError> {
-        Ok([
-            self.param(&format!("{prefix}.bn.weight"))?,
-            self.param(&format!("{prefix}.bn.bias"))?,
-            self.stat(&format!("{prefix}.bn.running_mean"))?,
-            self.stat(&format!("{prefix}.bn.running_var"))?,
-        ])
-    }
-
-    /// The conv + BN layer `prefix` on an input of `cin × h × w`, with padding k/2.
-    fn conv(&self, prefix: &str, h: usize, w: usize, stride: usize) -> Result<ConvBn, DetectError> {
-        let name = format!("{prefix}.conv.weight");
-        let s = self.shape(&name)?;
-        let &[cout, cin, k, k2] = s else {
-            return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
-        };
-        if k != k2 {
-            return Err(DetectError::BadParameter(format!("{name}: shape {s:?}")));
-        }
-        let geom = Geom::new(cin, h, w, k, stride, k / 2)?;
-        Ok(ConvBn::new(geom, cout, self.param(&name)?, self.bn(prefix)?))
-    }
+    let geom = Geom::new(cin, h, w, k, stride, k / 2)?;
+    Ok(ConvBn::new(geom, cout, names.param(&name)?, names.bn(prefix)?))
 }
 
 impl NativeTrainer {
@@ -128,28 +89,16 @@ impl NativeTrainer {
         let params = params_of(opt)?;
         let stats = stats_of(varmap)?;
         let adam = FlatAdamW::of(opt)?;
-        let names = Names {
-            params: params
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (p.name.as_str(), i))
-                .collect(),
-            stats: stats
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (p.name.as_str(), i))
-                .collect(),
-            all: &params,
-        };
+        let names = TensorIndex::new(&params, &stats);
         let cfg = &model.config;
         let n = cfg.grid.n;
         let branch_names: Vec<&str> = model.net.branches.iter().map(|(b, _)| b.as_str()).collect();
         let mut branches = Vec::new();
         for b in &branch_names {
             let prefix = branch_prefix(&branch_names, b);
-            let conv1 = names.conv(&format!("{prefix}.conv1"), n, n, 2)?;
+            let conv1 = conv(&names, &format!("{prefix}.conv1"), n, n, 2)?;
             let (h1, w1) = (conv1.geom_out().0, conv1.geom_out().1);
-            let conv2 = names.conv(&format!("{prefix}.conv2"), h1, w1, 1)?;
+            let conv2 = conv(&names, &format!("{prefix}.conv2"), h1, w1, 1)?;
             branches.push(Branch { conv1, conv2 });
         }
         let (h1, w1) = branches
@@ -163,14 +112,14 @@ impl NativeTrainer {
             ));
         }
         let block1 = (0..layers)
-            .map(|i| names.conv(&format!("rpn.block1.{i}"), h1, w1, 1))
+            .map(|i| conv(&names, &format!("rpn.block1.{i}"), h1, w1, 1))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut block2 = vec![names.conv("rpn.block2.0", h1, w1, 2)?];
+        let mut block2 = vec![conv(&names, "rpn.block2.0", h1, w1, 2)?];
         let (h2, w2) = block2[0].geom_out();
         for i in 1..=layers {
-            block2.push(names.conv(&format!("rpn.block2.{i}"), h2, w2, 1)?);
+            block2.push(conv(&names, &format!("rpn.block2.{i}"), h2, w2, 1)?);
         }
-        let up1 = names.conv("rpn.up1", h1, w1, 1)?;
+        let up1 = conv(&names, "rpn.up1", h1, w1, 1)?;
         let dname = "rpn.up2.deconv.weight";
         let ds = names.shape(dname)?;
         let &[dcin, dcout, s, s2] = ds else {

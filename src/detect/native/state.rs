@@ -3,6 +3,8 @@
 //! candle [`VarMap`] and its [`AdamW`], and AdamW itself over the buffers — the update of
 //! [`AdamW::update`], so checkpoints and weight files are the same on either path.
 
+use std::collections::HashMap;
+
 use candle_core::{Device, Tensor};
 use candle_nn::VarMap;
 
@@ -53,6 +55,57 @@ pub(crate) fn stats_of(varmap: &VarMap) -> Result<Vec<Param>, DetectError> {
         }
     }
     Ok(stats)
+}
+
+/// The index of a trainer's tensors by name: where each layer finds its weights.
+pub(crate) struct TensorIndex<'a> {
+    params: HashMap<&'a str, usize>,
+    stats: HashMap<&'a str, usize>,
+    all: &'a [Param],
+}
+
+impl<'a> TensorIndex<'a> {
+    /// Indexes trainable tensors `params` and running statistics `stats`.
+    pub fn new(params: &'a [Param], stats: &'a [Param]) -> Self {
+        let index = |ps: &'a [Param]| ps.iter().enumerate().map(|(i, p)| (p.name.as_str(), i)).collect();
+        Self {
+            params: index(params),
+            stats: index(stats),
+            all: params,
+        }
+    }
+
+    /// The position of trainable tensor `name`.
+    pub fn param(&self, name: &str) -> Result<usize, DetectError> {
+        self.params
+            .get(name)
+            .copied()
+            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
+    }
+
+    /// The position of running statistic `name`.
+    pub fn stat(&self, name: &str) -> Result<usize, DetectError> {
+        self.stats
+            .get(name)
+            .copied()
+            .ok_or_else(|| DetectError::BadParameter(format!("native trainer: no tensor {name}")))
+    }
+
+    /// The shape of trainable tensor `name`.
+    pub fn shape(&self, name: &str) -> Result<&'a [usize], DetectError> {
+        let all = self.all;
+        Ok(&all[self.param(name)?].shape)
+    }
+
+    /// γ, β, running mean, running var of the BatchNorm under `prefix`.
+    pub fn bn(&self, prefix: &str) -> Result<[usize; 4], DetectError> {
+        Ok([
+            self.param(&format!("{prefix}.bn.weight"))?,
+            self.param(&format!("{prefix}.bn.bias"))?,
+            self.stat(&format!("{prefix}.bn.running_mean"))?,
+            self.stat(&format!("{prefix}.bn.running_var"))?,
+        ])
+    }
 }
 
 /// Writes running statistics back into `varmap`'s variables.

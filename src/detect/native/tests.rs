@@ -18,15 +18,36 @@ fn sample_for(model: &Stage1Model, index: usize) -> PreparedSample {
     prepare_sample(model, &frame, None, &[]).unwrap()
 }
 
-/// max |a − b| / max |b|.
-fn rel(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
-    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+/// max |a − b|.
+pub(crate) fn diff(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
 }
 
-fn values(t: &Tensor) -> Vec<f32> {
+/// max |a − b| / max |b|.
+pub(crate) fn rel(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
+    diff(a, b) / scale
+}
+
+pub(crate) fn values(t: &Tensor) -> Vec<f32> {
     t.flatten_all().unwrap().to_vec1().unwrap()
+}
+
+/// The gradients `grads` holds for `vm`'s variables, by name, as f32.
+pub(crate) fn grads_by_name(
+    vm: &VarMap,
+    grads: &candle_core::backprop::GradStore,
+) -> HashMap<String, Vec<f32>> {
+    vm.data()
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(name, var)| {
+            let g = grads.get(var.as_tensor())?;
+            Some((name.clone(), values(&g.to_dtype(DType::F32).unwrap())))
+        })
+        .collect()
 }
 
 /// candle's graph and SECOND's loss ([`compute_loss_with`]) in f64, on `model`'s weights: the
@@ -106,17 +127,7 @@ fn reference_f64(
         .unwrap();
     let terms = [&cls, &reg, &dir].map(|t| t.to_scalar::<f64>().unwrap());
     let grads = ((cls + reg).unwrap() + dir).unwrap().backward().unwrap();
-    let out = vm
-        .data()
-        .lock()
-        .unwrap()
-        .iter()
-        .filter_map(|(name, var)| {
-            let g = grads.get(var.as_tensor())?;
-            Some((name.clone(), values(&g.to_dtype(DType::F32).unwrap())))
-        })
-        .collect();
-    (terms, out)
+    (terms, grads_by_name(&vm, &grads))
 }
 
 /// Every gradient and loss term of one step against candle's graph in f64; candle's own f32

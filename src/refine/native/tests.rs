@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::*;
 use crate::detect::checkpoint::{restore_varmap, varmap_tensors};
+use crate::detect::native::tests::{diff, grads_by_name, rel, values};
 use crate::detect::net::{sigmoid_focal_loss, smooth_l1 as smooth_l1_t};
 use crate::refine::loss::loss;
 use crate::refine::net::RefinerNet;
@@ -62,21 +63,6 @@ fn batch(cfg: &RefinerConfig, b: usize, seed: u64, positives: bool) -> TestBatch
         targets,
         max_trace,
     }
-}
-
-/// max |a − b| / max |b|.
-fn rel(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
-    diff(a, b) / scale
-}
-
-fn diff(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
-}
-
-fn values(t: &Tensor) -> Vec<f32> {
-    t.flatten_all().unwrap().to_vec1().unwrap()
 }
 
 /// candle's graph and eq. 17 in f64 on `varmap`'s weights: the reference both f32 paths are
@@ -147,17 +133,7 @@ fn reference_f64(
     let total = ((&reg + cls.affine(ETA, 0.0).unwrap()).unwrap() + uct.affine(LAMBDA, 0.0).unwrap()).unwrap();
     let terms = [&total, &reg, &cls, &uct].map(|t| t.to_scalar::<f64>().unwrap());
     let grads = total.backward().unwrap();
-    let out = vm
-        .data()
-        .lock()
-        .unwrap()
-        .iter()
-        .filter_map(|(name, var)| {
-            let g = grads.get(var.as_tensor())?;
-            Some((name.clone(), values(&g.to_dtype(DType::F32).unwrap())))
-        })
-        .collect();
-    (terms, out)
+    (terms, grads_by_name(&vm, &grads))
 }
 
 /// candle's f32 path (the trainer's `--slow-autograd` step) on `varmap`: loss and gradients.
