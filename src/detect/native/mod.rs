@@ -19,7 +19,9 @@ pub(crate) mod layers;
 pub mod loss;
 pub(crate) mod state;
 #[cfg(test)]
-pub(crate) mod tests;
+mod tests;
+#[cfg(test)]
+pub(crate) mod testutil;
 
 use self::layers::{ConvBn, DeconvBn, Heads, Param};
 use self::loss::{loss_and_grad, LossTerms};

@@ -2,6 +2,7 @@
 
 use std::collections::HashMap;
 
+use super::testutil::{grads_by_name, rel, values};
 use super::*;
 use crate::dataset::Dataset;
 use crate::detect::model::bev_tensor;
@@ -16,38 +17,6 @@ fn sample_for(model: &Stage1Model, index: usize) -> PreparedSample {
     let tokens: Vec<String> = ds.samples().into_iter().map(|s| s.sample_token).collect();
     let frame = ds.frame(&tokens[index % tokens.len()]).unwrap();
     prepare_sample(model, &frame, None, &[]).unwrap()
-}
-
-/// max |a − b|.
-pub(crate) fn diff(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
-}
-
-/// max |a − b| / max |b|.
-pub(crate) fn rel(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
-    diff(a, b) / scale
-}
-
-pub(crate) fn values(t: &Tensor) -> Vec<f32> {
-    t.flatten_all().unwrap().to_vec1().unwrap()
-}
-
-/// The gradients `grads` holds for `vm`'s variables, by name, as f32.
-pub(crate) fn grads_by_name(
-    vm: &VarMap,
-    grads: &candle_core::backprop::GradStore,
-) -> HashMap<String, Vec<f32>> {
-    vm.data()
-        .lock()
-        .unwrap()
-        .iter()
-        .filter_map(|(name, var)| {
-            let g = grads.get(var.as_tensor())?;
-            Some((name.clone(), values(&g.to_dtype(DType::F32).unwrap())))
-        })
-        .collect()
 }
 
 /// candle's graph and SECOND's loss ([`compute_loss_with`]) in f64, on `model`'s weights: the

@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::*;
 use crate::detect::checkpoint::{restore_varmap, varmap_tensors};
-use crate::detect::native::tests::{diff, grads_by_name, rel, values};
+use crate::detect::native::testutil::{diff, grads_by_name, rel, values};
 use crate::detect::net::{sigmoid_focal_loss, smooth_l1 as smooth_l1_t};
 use crate::refine::loss::loss;
 use crate::refine::net::RefinerNet;

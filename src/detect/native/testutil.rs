@@ -1,0 +1,39 @@
+//! Helpers of the native trainers' tests (stage 1's and the refiner's): error measures and the
+//! gradients of a candle graph by variable name.
+
+use std::collections::HashMap;
+
+use candle_core::{DType, Tensor};
+use candle_nn::VarMap;
+
+/// max |a − b|.
+pub(crate) fn diff(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
+}
+
+/// max |a − b| / max |b|.
+pub(crate) fn rel(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
+    diff(a, b) / scale
+}
+
+pub(crate) fn values(t: &Tensor) -> Vec<f32> {
+    t.flatten_all().unwrap().to_vec1().unwrap()
+}
+
+/// The gradients `grads` holds for `vm`'s variables, by name, as f32.
+pub(crate) fn grads_by_name(
+    vm: &VarMap,
+    grads: &candle_core::backprop::GradStore,
+) -> HashMap<String, Vec<f32>> {
+    vm.data()
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(name, var)| {
+            let g = grads.get(var.as_tensor())?;
+            Some((name.clone(), values(&g.to_dtype(DType::F32).unwrap())))
+        })
+        .collect()
+}
