@@ -18,9 +18,35 @@ pub struct SynthArgs {
     /// Seed of everything generated (layout, motion, noise, tokens).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Sensor randomisation: each scene's roof LiDAR is one of these (comma separated:
+    /// pandar40, pandar64, hdl64e, hdl32e, vls128; `all` for every one). Default: Lyft's Pandar40.
+    #[arg(long, value_delimiter = ',', value_parser = parse_preset)]
+    roof_sensors: Vec<Vec<mlod::synth::SensorPreset>>,
+    /// Sensor randomisation: each scene's roof LiDAR mount raised or lowered by up to this (m).
+    #[arg(long, default_value_t = 0.0)]
+    roof_height_jitter: f64,
+    /// Car sizes: `uniform` (4.2–5.0 m long, one body shape) or `mixed` (compacts, sedans, SUVs
+    /// and pickups; mean near real Lyft's 4.75 × 1.92 × 1.71 m).
+    #[arg(long, default_value = "uniform", value_parser = ["uniform", "mixed"])]
+    car_sizes: String,
+    /// Intensity: `reflectance` (from the material and incidence, 0–255) or `lyft` (100 for
+    /// every point, as the real Lyft Level 5 files hold).
+    #[arg(long, default_value = "reflectance", value_parser = ["reflectance", "lyft"])]
+    intensity: String,
     /// Show a progress bar.
     #[arg(long)]
     progress: bool,
+}
+
+fn parse_preset(s: &str) -> Result<Vec<mlod::synth::SensorPreset>, String> {
+    use mlod::synth::SensorPreset;
+    if s.trim() == "all" {
+        return Ok(SensorPreset::ALL.to_vec());
+    }
+    SensorPreset::parse(s).map(|p| vec![p]).ok_or_else(|| {
+        let names: Vec<&str> = SensorPreset::ALL.iter().map(|p| p.name()).collect();
+        format!("{s}: not a roof LiDAR (one of {}, or all)", names.join(", "))
+    })
 }
 
 #[derive(clap::Args)]
@@ -47,6 +73,19 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         seed: args.seed,
         scenes: args.scenes,
         samples_per_scene: args.samples_per_scene,
+        roof: mlod::synth::RoofRandomisation {
+            presets: args.roof_sensors.iter().flatten().copied().collect(),
+            height_jitter_m: args.roof_height_jitter,
+        },
+        car_sizes: if args.car_sizes == "mixed" {
+            mlod::synth::CarSizes::Mixed
+        } else {
+            mlod::synth::CarSizes::Uniform
+        },
+        lidar: mlod::synth::LidarModel {
+            constant_intensity: (args.intensity == "lyft").then_some(100.0),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let bar = args.progress.then(|| {

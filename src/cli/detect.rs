@@ -39,11 +39,31 @@ pub struct DetectorRun {
     /// the threshold chosen on the validation scenes).
     #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
+    /// Set every point's intensity to this value before the detector runs (real Lyft data holds
+    /// 100 everywhere): how much a model leans on intensity.
+    #[arg(long, value_parser = parse_intensity)]
+    pub set_intensity: Option<f32>,
     #[command(flatten)]
     pub external: super::external::ExternalArgs,
 }
 
+fn parse_intensity(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if !v.is_finite() || !(0.0..=65535.0).contains(&v) {
+        return Err(format!("{s}: an intensity is finite and within 0..=65535"));
+    }
+    Ok(v)
+}
+
 impl DetectorRun {
+    /// `--set-intensity`: every LiDAR's intensities replaced.
+    pub fn apply_intensity(&self, frame: &mut mlod::dataset::Frame) {
+        if let Some(v) = self.set_intensity {
+            for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
+                scan.points.intensity.fill(v);
+            }
+        }
+    }
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
         self.external.define_for(&[case])?;
@@ -102,7 +122,8 @@ pub enum DetectFormat {
 pub fn detect(a: DetectArgs) -> Result<()> {
     let dataset = super::open_dataset(&a.dataset)?;
     let token = sample_token(&dataset, a.sample.as_deref())?;
-    let frame = dataset.frame(&token)?;
+    let mut frame = dataset.frame(&token)?;
+    a.run.apply_intensity(&mut frame);
     let params = a.run.fuse_params()?;
     let detector = a.run.load(a.case)?;
     super::stats::print_training_notes(&dataset, &a.run.models_dir());

@@ -52,6 +52,11 @@ pub struct EvalArgs {
     /// AP_3D@0.7 per trial with its mean ± standard deviation (comma separated, e.g. 0,1,2,3,4).
     #[arg(long, value_delimiter = ',', requires = "case", conflicts_with_all = ["per_box", "pred"])]
     seeds: Vec<u64>,
+    /// Also the transfer check of real frames (docs/realism.md): cars within 50 m found by a
+    /// prediction scoring ≥ 0.3 with its BEV centre within 2 m, AP over such matches,
+    /// confident false positives (nothing within 2 m) per frame, cars found at 3D IoU ≥ 0.5.
+    #[arg(long)]
+    transfer: bool,
     /// Print JSON instead of tables.
     #[arg(long)]
     json: bool,
@@ -94,7 +99,8 @@ pub fn detect_case(
     let dets = tokens
         .par_iter()
         .map(|tok| -> Result<(String, Vec<mlod::detect::Detection>)> {
-            let frame = dataset.frame(tok)?;
+            let mut frame = dataset.frame(tok)?;
+            run.apply_intensity(&mut frame);
             if let Some(note) = case.missing_lidars_note(&frame) {
                 lacking.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 if let Ok(mut first) = first_note.lock() {
@@ -143,6 +149,7 @@ pub fn eval_cmd(args: EvalArgs) -> Result<()> {
     let mut opts = EvalOptions {
         samples: args.samples,
         validation_only: args.validation,
+        transfer: args.transfer.then(mlod::eval::TransferRule::default),
         ..Default::default()
     };
     if args.interpolation == "r11" {
@@ -245,6 +252,36 @@ pub fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()
         "  mean                {:.4}   {:.4}",
         report.lyft.map, report.lyft_exact.map
     );
+    if let Some(t) = &report.transfer {
+        let p = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+        let r = &t.rule;
+        println!(
+            "\nTransfer check ({} within {} m; a match: BEV centre within {} m)",
+            r.category, r.max_range, r.centre_dist
+        );
+        println!(
+            "  found with score >= {}        {} of {} ({} %)",
+            r.min_score,
+            t.found,
+            t.boxes,
+            p(t.found_pct)
+        );
+        println!("  AP over centre matches (R40)  {}", p(t.ap_centre));
+        println!(
+            "  confident false positives     {} in {} frames ({} per frame)",
+            t.confident_false_positives,
+            t.frames,
+            t.confident_false_positives_per_frame
+                .map_or("-".to_string(), |v| format!("{v:.2}"))
+        );
+        println!(
+            "  found at 3D IoU >= {}         {} of {} ({} %)",
+            r.iou,
+            t.found_iou,
+            t.boxes,
+            p(t.found_iou_pct)
+        );
+    }
     if let Some(att) = &report.attribution {
         println!(
             "\nAP_3D (%) with the matched boxes (3D IoU >= {}, range < {} m) partly replaced by the truth",

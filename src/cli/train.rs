@@ -96,6 +96,14 @@ pub struct Stage1Args {
     /// (1: all seven residuals weigh the same, as in SECOND's default).
     #[arg(long, default_value_t = 1.0)]
     size_weight: f32,
+    /// Augmentation for transfer to other sensors and cars: object scaling, global scaling and
+    /// random point density (src/detect/transfer_aug.rs).
+    #[arg(long)]
+    transfer_aug: bool,
+    /// Leave intensity out of the input (its BEV channel stays zero): for data whose intensity
+    /// is not real (real Lyft files hold 100 everywhere) or differs between sensors.
+    #[arg(long)]
+    no_intensity: bool,
     /// Print one line every N steps (besides the progress bar).
     #[arg(long, default_value_t = 50)]
     log_every: u64,
@@ -141,6 +149,8 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             }
             cfg.size_weight = a.size_weight;
             cfg.slow_autograd = a.slow_autograd;
+            cfg.transfer_aug = a.transfer_aug;
+            cfg.no_intensity = a.no_intensity;
             // candle runs its element-wise ops on a spinning thread pool of its own beside rayon's
             // (which gemm uses); on 2 busy cores the two pools fight and the spinning took ~40% of
             // a step (docs/stage1.md, "A training step's profile"). One candle thread unless the
@@ -251,6 +261,7 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
             vote_iou: voting,
             oc_prior: Default::default(),
             drop_trace: mlod::detect::drop::DROP_TRACE,
+            set_intensity: None,
             external: Default::default(),
         };
         let mut per_case = BTreeMap::new();

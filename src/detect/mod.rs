@@ -34,6 +34,7 @@ pub mod net;
 pub mod oc;
 pub mod optim;
 pub mod train;
+pub mod transfer_aug;
 pub mod voxel;
 pub mod warm_start;
 pub mod weights;

@@ -43,6 +43,7 @@ use super::native::loss::LossTerms;
 use super::native::NativeTrainer;
 use super::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 pub use super::optim::AdamW;
+use super::transfer_aug::TransferAug;
 use super::voxel::{voxelize, Bev, PointsRef};
 pub use super::warm_start::warm_start;
 use super::weights::{file_name_of, folder_of, read_weights, sha256_hex, InitRecord, Manifest, ModelEntry};
@@ -135,6 +136,20 @@ pub fn prepare_sample(
     aug: Option<&Augmentation>,
     objects: &[&GtObject],
 ) -> Result<PreparedSample, DetectError> {
+    prepare_sample_with(model, frame, aug, objects, None)
+}
+
+/// Boxes per frame that [`TransferAug`] may scale (the rest keep their size).
+const MAX_SCALED_BOXES: usize = 128;
+
+/// [`prepare_sample`] with the transfer augmentation before SECOND's.
+pub fn prepare_sample_with(
+    model: &Stage1Model,
+    frame: &Frame,
+    aug: Option<&Augmentation>,
+    objects: &[&GtObject],
+    transfer: Option<&TransferAug>,
+) -> Result<PreparedSample, DetectError> {
     let cfg = &model.config;
     let mut cloud = fuse(frame, &FuseParams::default())?;
     if !objects.is_empty() {
@@ -147,6 +162,9 @@ pub fn prepare_sample(
         }
     }
     boxes.extend(objects.iter().map(|o| o.raw));
+    if let Some(t) = transfer {
+        t.apply(&mut cloud, &mut boxes);
+    }
     if let Some(a) = aug {
         a.apply(&mut cloud, &mut boxes);
     }
@@ -287,6 +305,12 @@ pub struct TrainConfig {
     /// only the float rounding and the speed differ.
     #[serde(default)]
     pub slow_autograd: bool,
+    /// [`super::transfer_aug`]: object and global scaling, random point density.
+    #[serde(default)]
+    pub transfer_aug: bool,
+    /// The model's input leaves intensity out ([`super::voxel::GridConfig::intensity`]).
+    #[serde(default)]
+    pub no_intensity: bool,
 }
 
 impl TrainConfig {
@@ -312,6 +336,8 @@ impl TrainConfig {
             size_weight: 1.0,
             command: String::new(),
             slow_autograd: false,
+            transfer_aug: false,
+            no_intensity: false,
         }
     }
 
@@ -509,7 +535,9 @@ pub fn train_stage1(
             cfg.dataset.display()
         )));
     }
-    let model = Stage1Model::new_trainable(ModelConfig::new(cfg.case), cfg.seed)?;
+    let mut config = ModelConfig::new(cfg.case);
+    config.grid.intensity = !cfg.no_intensity;
+    let model = Stage1Model::new_trainable(config, cfg.seed)?;
     let database = if cfg.gt_sample > 0 {
         let a = &model.config.anchor;
         GtDatabase::build(&dataset, &train, cfg.case, &a.category, a.min_points)?
@@ -554,7 +582,10 @@ pub fn train_stage1(
         let frame = dataset.frame(token)?;
         let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
-        let sample = prepare_sample(&model, &frame, aug.as_ref(), &objects)?;
+        let transfer = cfg
+            .transfer_aug
+            .then(|| TransferAug::draw(&mut stream_rng(cfg.seed, (1u64 << 34) + step), MAX_SCALED_BOXES));
+        let sample = prepare_sample_with(&model, &frame, aug.as_ref(), &objects, transfer.as_ref())?;
         Ok((sample, t0.elapsed().as_secs_f64() * 1e3))
     };
     std::thread::scope(|scope| -> Result<(), DetectError> {

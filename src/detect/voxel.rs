@@ -32,6 +32,19 @@ pub struct GridConfig {
     /// configuration of models trained before they existed).
     #[serde(default)]
     pub xy_means: bool,
+    /// Whether the column-intensity channel holds the mean intensity (true, and every model
+    /// trained before the field existed) or stays zero (models trained with `--no-intensity`,
+    /// for data whose intensity is not real or differs between sensors).
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub intensity: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(v: &bool) -> bool {
+    *v
 }
 
 impl Default for GridConfig {
@@ -44,6 +57,7 @@ impl Default for GridConfig {
             z_max: 1.0,
             nz: 8,
             xy_means: true,
+            intensity: true,
         }
     }
 }
@@ -145,7 +159,9 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
             ysum[v] += fy - fy.floor();
         }
         col_count[c] += 1;
-        isum[c] += pts.intensity[i];
+        if grid.intensity {
+            isum[c] += pts.intensity[i];
+        }
         used += 1;
     }
     let mut data = vec![0f32; grid.channels() * cols];

@@ -237,6 +237,8 @@ pub struct EvalOptions {
     pub validation_only: bool,
     /// Only these samples, in this order (a sweep's spread subset); before `samples`.
     pub only: Option<Vec<String>>,
+    /// Also the transfer check (found by centre distance, confident false positives).
+    pub transfer: Option<super::transfer::TransferRule>,
 }
 
 /// How many predictions were read, used and rejected.
@@ -306,6 +308,9 @@ pub struct EvalReport {
     /// With `attribution`: the AP with each part of the matched predictions replaced by the truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub attribution: Option<Vec<Attribution>>,
+    /// With `transfer`: the transfer check (issue 29's measures on real frames).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transfer: Option<super::transfer::TransferReport>,
 }
 
 /// The AP when one part of every matched prediction's box is taken from its ground truth.
@@ -511,6 +516,10 @@ fn finish(
         })
         .collect();
     let kitti = kitti_ap(&samples, &opts.kitti);
+    let transfer = opts
+        .transfer
+        .as_ref()
+        .map(|rule| super::transfer::transfer_check(&samples, rule));
     let lyft_gt: Vec<LyftBox> = truths.iter().flat_map(|s| s.lyft.iter().cloned()).collect();
     let th = thresholds();
     let lyft = lyft_map(&lyft_gt, &lyft_preds, &th, Footprints::Devkit);
@@ -617,6 +626,7 @@ fn finish(
     });
     EvalReport {
         attribution,
+        transfer,
         localization,
         kitti,
         lyft,

@@ -9,6 +9,7 @@ pub mod kitti;
 pub mod localization;
 pub mod lyft;
 pub mod matching;
+pub mod transfer;
 
 pub use ap::Interpolation;
 pub use dataset::{
@@ -19,3 +20,4 @@ pub use kitti::{kitti_ap, KittiConfig, SampleBoxes};
 pub use localization::{with_truth, BoxError, Fix, LocalizationSummary};
 pub use lyft::{lyft_iou, lyft_map, Footprints, LyftBox, LyftMap};
 pub use matching::{match_drawn, match_sample, GtOutcome, MatchRule, PredOutcome, SampleMatch};
+pub use transfer::{transfer_check, TransferReport, TransferRule};

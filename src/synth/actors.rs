@@ -151,6 +151,87 @@ fn clothing(rng: &mut impl Rng) -> Material {
     Material::uniform(rng.random_range(0.08..0.5))
 }
 
+/// How car sizes are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CarSizes {
+    /// Uniform over 4.2–5.0 × 1.8–2.1 × 1.4–1.9 m, one body shape (the v1–v3 simulator).
+    #[default]
+    Uniform,
+    /// Body types with their own sizes and cabins: compacts 15 % (3.6–4.3 m long, KITTI's
+    /// typical car), sedans 30 %, SUVs 40 %, pickups 15 % (5.3–5.9 m, a short cabin and the bed
+    /// at belt height); the mean, about 4.74 × 1.90 × 1.66 m, is near real Lyft's 4.75 × 1.92 × 1.71 m.
+    Mixed,
+}
+
+/// A car of the `Mixed` size distribution: one of four body types.
+fn mixed_car(rng: &mut impl Rng) -> ActorShape {
+    let u: f64 = rng.random_range(0.0..1.0);
+    let (l, w, h, cabin) = if u < 0.15 {
+        let c = Cabin {
+            belt: 0.5,
+            length: 0.6,
+            x: -0.02,
+            width: 0.43,
+        };
+        (
+            rng.random_range(3.6..4.3),
+            rng.random_range(1.65..1.8),
+            rng.random_range(1.4..1.55),
+            c,
+        )
+    } else if u < 0.45 {
+        let c = Cabin {
+            belt: 0.52,
+            length: 0.52,
+            x: -0.05,
+            width: 0.43,
+        };
+        (
+            rng.random_range(4.4..4.95),
+            rng.random_range(1.78..1.9),
+            rng.random_range(1.4..1.5),
+            c,
+        )
+    } else if u < 0.85 {
+        let c = Cabin {
+            belt: 0.5,
+            length: 0.66,
+            x: -0.08,
+            width: 0.44,
+        };
+        (
+            rng.random_range(4.4..5.1),
+            rng.random_range(1.85..2.05),
+            rng.random_range(1.7..1.9),
+            c,
+        )
+    } else {
+        // Pickup: the cabin forward of the middle, the bed behind it at belt height.
+        let c = Cabin {
+            belt: 0.55,
+            length: 0.36,
+            x: 0.12,
+            width: 0.44,
+        };
+        (
+            rng.random_range(5.3..5.9),
+            rng.random_range(1.95..2.1),
+            rng.random_range(1.8..1.95),
+            c,
+        )
+    };
+    let rho = paint(rng);
+    cabin_vehicle(mm(l), mm(w), mm(h), cabin, rho)
+}
+
+/// Builds a random shape of a category, cars drawn as `car_sizes` says.
+pub fn build_with(category: Category, car_sizes: CarSizes, rng: &mut impl Rng) -> ActorShape {
+    if category == Category::Car && car_sizes == CarSizes::Mixed {
+        return mixed_car(rng);
+    }
+    build(category, rng)
+}
+
 /// Builds a random shape of a category.
 pub fn build(category: Category, rng: &mut impl Rng) -> ActorShape {
     match category {

@@ -25,16 +25,19 @@ pub(crate) mod noise;
 pub mod raycast;
 pub mod rig;
 pub mod scene;
+pub mod sensors;
 pub mod shapes;
 pub mod street;
 pub mod writer;
 
 use std::path::PathBuf;
 
+pub use actors::CarSizes;
 pub use actors::{ActorShape, Category};
 pub use raycast::{scan_sample, Hit, LidarScan, SampleScan};
 pub use rig::{pandar40_elevations_deg, LidarModel, LidarMount, EGO_BODY, LIDAR_COUNT, LYFT_MOUNTS};
 pub use scene::{Actor, Attribute, SceneWorld, Town, SAMPLE_PERIOD_S};
+pub use sensors::{RoofRandomisation, RoofSensor, SensorPreset};
 pub use writer::{generate, HOST};
 
 /// The most scenes one dataset may have.
@@ -58,6 +61,10 @@ pub struct SynthConfig {
     pub annotation_range_m: f64,
     /// Objects with fewer LiDAR points than this (all LiDARs together) are not annotated.
     pub min_points_per_box: u32,
+    /// Sensor randomisation of the roof LiDAR (none by default).
+    pub roof: RoofRandomisation,
+    /// How car sizes are drawn.
+    pub car_sizes: CarSizes,
 }
 
 impl Default for SynthConfig {
@@ -69,6 +76,8 @@ impl Default for SynthConfig {
             lidar: LidarModel::default(),
             annotation_range_m: 80.0,
             min_points_per_box: 1,
+            roof: RoofRandomisation::default(),
+            car_sizes: CarSizes::default(),
         }
     }
 }
@@ -110,6 +119,10 @@ impl SynthConfig {
         let min_ok = m.min_range_m.is_finite() && m.min_range_m >= 0.0 && m.min_range_m < m.max_range_m;
         if !noise_ok || !min_ok || !(0.0..1.0).contains(&m.dropout) {
             return bad("range noise, minimum range or drop-out out of range".into());
+        }
+        let jitter = self.roof.height_jitter_m;
+        if !jitter.is_finite() || !(0.0..=1.0).contains(&jitter) {
+            return bad(format!("roof height jitter must be within 0..=1 m, got {jitter}"));
         }
         if let Some(v) = m.constant_intensity {
             if !v.is_finite() {

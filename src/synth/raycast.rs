@@ -21,7 +21,7 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::noise::{hash_key, RayStream};
-use super::rig::{ego_body_blocks, LidarModel, LIDAR_COUNT, LYFT_MOUNTS};
+use super::rig::{ego_body_blocks, ego_body_blocks_below_roof, LidarModel, LIDAR_COUNT};
 use super::scene::{SceneWorld, Town};
 pub use super::shapes::Hit;
 use super::shapes::{Material, Primitive};
@@ -244,14 +244,23 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
     }
     let grid = Grid::build(prims, ego_xy, reach, 4.0);
 
-    let steps = model.azimuth_steps.max(1);
-    let beams: Vec<(f64, f64)> = model
-        .elevations_deg
-        .iter()
-        .map(|e| e.to_radians().sin_cos())
+    // Per LiDAR: its beams (sin, cos of the elevations) and azimuth steps; the roof LiDAR is the
+    // scene's preset when sensor randomisation drew one.
+    let sin_cos = |e: &[f64]| -> Vec<(f64, f64)> { e.iter().map(|e| e.to_radians().sin_cos()).collect() };
+    let default_beams = sin_cos(&model.elevations_deg);
+    let lidar_beams: Vec<(Vec<(f64, f64)>, usize)> = (0..LIDAR_COUNT)
+        .map(|l| match scene.roof.preset {
+            Some(p) if l == 0 => (sin_cos(&p.elevations_deg()), p.azimuth_steps()),
+            _ => (default_beams.clone(), model.azimuth_steps.max(1)),
+        })
         .collect();
-    let frames: Vec<SensorFrame> = LYFT_MOUNTS
-        .iter()
+    // Column idx of LiDAR l starts at offsets[l].
+    let mut offsets = vec![0usize; LIDAR_COUNT + 1];
+    for l in 0..LIDAR_COUNT {
+        offsets[l + 1] = offsets[l] + lidar_beams[l].1;
+    }
+    let frames: Vec<SensorFrame> = (0..LIDAR_COUNT)
+        .map(|l| town.mount_of(scene, l))
         .map(|m| {
             let ego_from_sensor = m.pose();
             let world_from_sensor = ego * ego_from_sensor;
@@ -266,10 +275,12 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
     let ground = &street.ground;
     let key_base = [seed, scene.index as u64, k as u64];
 
-    let columns: Vec<Column> = (0..LIDAR_COUNT * steps)
+    let columns: Vec<Column> = (0..offsets[LIDAR_COUNT])
         .into_par_iter()
         .map(|idx| {
-            let (l, j) = (idx / steps, idx % steps);
+            let l = offsets.partition_point(|&o| o <= idx) - 1;
+            let j = idx - offsets[l];
+            let (beams, steps) = (&lidar_beams[l].0, lidar_beams[l].1);
             let SensorFrame {
                 r_world: r_ws,
                 o_world: o_w,
@@ -281,7 +292,13 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
             let mut blocked = 0;
             for (ring, &(se, ce)) in beams.iter().enumerate() {
                 let ds = Vector3::new(ce * ca, ce * sa, se);
-                if ego_body_blocks(o_e, &to_array(&(r_es * ds))) {
+                let de = to_array(&(r_es * ds));
+                let blocks = if l == 0 && scene.roof.preset.is_some() {
+                    ego_body_blocks_below_roof(o_e, &de)
+                } else {
+                    ego_body_blocks(o_e, &de)
+                };
+                if blocks {
                     blocked += 1;
                     continue;
                 }
@@ -339,7 +356,7 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
 
     let mut lidars: Vec<LidarScan> = (0..LIDAR_COUNT).map(|_| LidarScan::default()).collect();
     for (idx, (points, blocked)) in columns.into_iter().enumerate() {
-        let scan = &mut lidars[idx / steps];
+        let scan = &mut lidars[offsets.partition_point(|&o| o <= idx) - 1];
         scan.blocked_by_ego += blocked;
         for (p, h) in points {
             scan.points.push(p);

@@ -153,7 +153,20 @@ pub const EGO_BODY: [([f64; 3], [f64; 3]); 3] = [
 /// Whether a ray (origin and unit direction in the ego frame) hits the ego body at t > 0.
 #[inline]
 pub fn ego_body_blocks(o: &[f64; 3], d: &[f64; 3]) -> bool {
-    EGO_BODY.iter().any(|(lo, hi)| {
+    body_blocks(&EGO_BODY, o, d)
+}
+
+/// [`ego_body_blocks`] without the cabin: a roof LiDAR of sensor randomisation sits on a mast
+/// or rack above the roof (as KITTI's HDL-64E does), so its steep beams clear the cabin and only
+/// the hood and the trunk hide the road next to the car.
+#[inline]
+pub fn ego_body_blocks_below_roof(o: &[f64; 3], d: &[f64; 3]) -> bool {
+    body_blocks(&EGO_BODY[..2], o, d)
+}
+
+#[inline]
+fn body_blocks(body: &[([f64; 3], [f64; 3])], o: &[f64; 3], d: &[f64; 3]) -> bool {
+    body.iter().any(|(lo, hi)| {
         let mut t0 = 0.0f64;
         let mut t1 = f64::INFINITY;
         for k in 0..3 {

@@ -177,6 +177,8 @@ pub struct SceneWorld {
     pub timestamps_ns: Vec<u64>,
     /// Key-frame times in seconds since the first.
     pub times_s: Vec<f64>,
+    /// The roof LiDAR of this scene (sensor randomisation).
+    pub roof: super::sensors::RoofSensor,
 }
 
 impl SceneWorld {
@@ -330,6 +332,7 @@ impl Town {
                     p.lane,
                     &p.times_s,
                     cfg.annotation_range_m + 15.0,
+                    cfg.car_sizes,
                 );
                 SceneWorld {
                     index: i,
@@ -338,6 +341,7 @@ impl Town {
                     actors,
                     timestamps_ns: std::mem::take(&mut p.timestamps_ns),
                     times_s: std::mem::take(&mut p.times_s),
+                    roof: cfg.roof.draw(seed, i),
                 }
             })
             .collect();
@@ -455,6 +459,15 @@ impl Town {
         )
     }
 
+    /// Mount `l` of the car in `scene`: LIDAR_TOP raised by the scene's roof offset.
+    pub fn mount_of(&self, scene: &SceneWorld, l: usize) -> LidarMount {
+        let mut m = LYFT_MOUNTS[l.min(LYFT_MOUNTS.len() - 1)];
+        if l == 0 {
+            m.translation[2] += scene.roof.dz;
+        }
+        m
+    }
+
     /// The mounts of the car, base LiDAR first.
     pub fn mounts(&self) -> &'static [LidarMount] {
         &LYFT_MOUNTS
@@ -536,6 +549,7 @@ fn populate(
     ego_lane: u32,
     times: &[f64],
     reach: f64,
+    car_sizes: actors::CarSizes,
 ) -> Vec<Actor> {
     let layout = street.ground.layout;
     let mut actors: Vec<Actor> = Vec::new();
@@ -557,7 +571,7 @@ fn populate(
                         (Category::Motorcycle, 0.04),
                     ],
                 );
-                let shape = actors::build(cat, rng);
+                let shape = actors::build_with(cat, car_sizes, rng);
                 let l = shape.size_lwh[0];
                 let cx = x + 0.5 * l;
                 let y = y_lane + rng.random_range(-0.1..0.1);
@@ -607,7 +621,7 @@ fn populate(
                         (Category::EmergencyVehicle, 0.015),
                     ],
                 );
-                let shape = actors::build(cat, rng);
+                let shape = actors::build_with(cat, car_sizes, rng);
                 let l = shape.size_lwh[0];
                 let cx = x + 0.5 * l;
                 // Keep clear of the ego car (x from −1 to 3.9 m along its heading) in its lane.

@@ -236,7 +236,8 @@ pub fn generate(
         let cs_tokens: Vec<String> = (0..LYFT_MOUNTS.len())
             .map(|l| tok.make("calibrated_sensor", &[si, l]))
             .collect();
-        for (m, token) in LYFT_MOUNTS.iter().zip(&cs_tokens) {
+        for (l, token) in cs_tokens.iter().enumerate() {
+            let m = town.mount_of(scene, l);
             calibrated.push(CalibratedSensor {
                 sensor_token: m.sensor_token.into(),
                 rotation: m.rotation_wxyz,
