@@ -15,6 +15,9 @@ use mlod::synth::{
 use nalgebra::Point3;
 use serde_json::Value;
 
+#[path = "synth/sensors.rs"]
+mod sensors;
+
 /// A fresh, empty folder under cargo's per-target temporary directory.
 fn fresh_dir(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))

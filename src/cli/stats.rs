@@ -286,6 +286,23 @@ fn print_lidar(l: &LidarStats) {
 /// [`NOTE_SAMPLES`] samples) and the training data's summary in `models_dir`'s manifest. Silent
 /// when the manifest has no summary or the dataset cannot be summarised (the command's own work
 /// reports such errors).
+/// Whether the models folder's LiDAR-Top reads intensity (models trained with `--no-intensity`
+/// do not, and need no note about it); true when it cannot tell.
+fn models_use_intensity(models_dir: &Path) -> bool {
+    use mlod::detect::{weights, Case};
+    let config = || -> Option<mlod::detect::config::ModelConfig> {
+        let manifest = weights::Manifest::load(models_dir).ok()?;
+        let path = manifest
+            .entry(models_dir, Case::Top)
+            .ok()?
+            .path_in(models_dir)
+            .ok()?;
+        let file = weights::read_weights(&path, None).ok()?;
+        serde_json::from_str(file.metadata.get("mlod.config")?).ok()
+    };
+    config().is_none_or(|c| c.grid.intensity)
+}
+
 pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     let Ok(Some(trained)) = mlod::detect::weights::read_training_stats(models_dir) else {
         return;
@@ -293,7 +310,10 @@ pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     let Ok(data) = mlod::dataset::summarize(dataset, NOTE_SAMPLES) else {
         return;
     };
-    let notes = mlod::dataset::out_of_depth_notes(&trained, &data);
+    let mut notes = mlod::dataset::out_of_depth_notes(&trained, &data);
+    if !models_use_intensity(models_dir) {
+        notes.retain(|n| !n.starts_with("intensity"));
+    }
     if notes.is_empty() {
         return;
     }

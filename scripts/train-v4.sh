@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# v4 models (issue 29): every stage-1 case trained from scratch on the sensor-randomised
+# simulator with the transfer augmentation and without intensity. Resumable: re-run the same
+# command after a kill; a finished model is skipped and an interrupted one continues from its
+# checkpoint. Each step's wall time goes to OUT/times.tsv.
+#
+# Usage: scripts/train-v4.sh DATA OUT [CASE...]
+#   DATA  a folder holding train/, made by
+#         mlod synth --out DATA/train --scenes 80 --samples-per-scene 20 --seed 101 \
+#           --roof-sensors all --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft
+#   OUT   where the weights, loss CSVs, checkpoints and logs go
+#   CASE  top input left right feature (default: all five, in that order); Result Fusion
+#         reuses top/left/right
+# The binary is target/release/mlod (cargo build --release); STEPS (default 6000) and SEED
+# (default 4) can be set in the environment.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+data=${1:?DATA}
+out=${2:?OUT}
+shift 2
+cases=("$@")
+[ ${#cases[@]} -gt 0 ] || cases=(top input left right feature)
+steps=${STEPS:-6000}
+seed=${SEED:-4}
+mkdir -p "$out"
+bin=${MLOD_BIN:-target/release/mlod}
+export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=1000000000000 MALLOC_TOP_PAD_=1073741824
+
+for c in "${cases[@]}"; do
+  if [ -f "$out/$c.safetensors" ]; then
+    echo "$c: done"
+    continue
+  fi
+  resume=()
+  [ -f "$out/$c.ckpt.safetensors" ] && resume=(--resume)
+  echo "$c: training ${resume[*]}"
+  t0=$(date +%s)
+  "$bin" train stage1 --case "$c" --dataset "$data/train" --out "$out/$c.safetensors" \
+    --steps "$steps" --seed "$seed" --transfer-aug --no-intensity \
+    --checkpoint "$out/$c.ckpt.safetensors" "${resume[@]}" >> "$out/train-$c.log" 2>&1
+  printf '%s\t%s\n' "$c" "$(( $(date +%s) - t0 ))" >> "$out/times.tsv"
+done
+echo "all done"
