@@ -4,6 +4,10 @@
     mlod detect --dataset sample_data --case ext:torch \
         --detector "torch=python3 examples/detectors/torch_top.py [--models DIR] [--threads N]"
 
+Options: --models DIR (default assets/models; give mlod the same --models), --threads N (torch's
+CPU threads), --vote-iou manifest|off|IOU (as mlod's --vote-iou), --timing (per-frame times on
+stderr). Tested against the built-in case: tests/cli/external.rs, torch_top_equals_the_built_in_top.
+
 It loads the LiDAR-Top weights of a models folder (manifest.json + the safetensors file it names,
 sha256-checked) and reproduces `mlod detect --case top` step by step, as the Rust side does it:
 
@@ -30,6 +34,7 @@ import math
 import os
 import struct
 import sys
+import time
 
 import numpy as np
 import torch
@@ -383,12 +388,15 @@ class TorchTop:
 
     def detect_points(self, pts):
         """Boxes (dicts of the protocol) on an (N, 6) float32 request cloud."""
+        t0 = time.perf_counter()
         top = pts[pts[:, 4] == TOP_LIDAR]
         if len(pts) > 0 and len(top) == 0:
             raise ValueError("the request has no LIDAR_TOP points (lidar 0): LiDAR-Top has nothing to see")
         c = self.config
         bev = voxelize(c["grid"], top[:, 0], top[:, 1], top[:, 2], top[:, 3])
+        t1 = time.perf_counter()
         cls, reg, dirs = self.net.forward(bev)
+        t2 = time.perf_counter()
         n = min(len(cls), len(self.anchors))
         cls = cls[:n]
         p = np.float32(min(max(c["score_threshold"], 1e-6), 1.0 - 1e-6))
@@ -407,6 +415,7 @@ class TorchTop:
         kept = nms(boxes, score, foot, float(c["nms_iou"]), int(c["max_detections"]))
         final = vote(boxes, score, foot, kept, self.vote_iou) if self.vote_iou else [boxes[k] for k in kept]
         cat = c["anchor"]["category"]
+        self.times = (t1 - t0, t2 - t1, time.perf_counter() - t2)
         return [
             dict(category=cat, score=float(score[k]), center=b[:3], size_lwh=b[3:6], yaw=b[6])
             for k, b in zip(kept, final)
@@ -426,11 +435,21 @@ def main():
     ap.add_argument("--models", default=None, help="models folder with manifest.json (default: assets/models)")
     ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
     ap.add_argument("--vote-iou", default="manifest", help="manifest (default), off, or an IoU in (0, 1]")
+    ap.add_argument("--timing", action="store_true", help="print each frame's times (ms) to stderr")
     args = ap.parse_args()
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     det = TorchTop(args.models or default_models(), args.vote_iou)
-    serve(lambda _request, points: det.detect_points(np.asarray(points, np.float32).reshape(-1, 6)))
+
+    def detect(request, points):
+        boxes = det.detect_points(np.asarray(points, np.float32).reshape(-1, 6))
+        if args.timing:
+            v, n, d = (1e3 * t for t in det.times)
+            print("%s: voxels %.1f ms, network %.1f ms, decoding+NMS %.1f ms" % (request["sample_token"], v, n, d),
+                  file=sys.stderr, flush=True)
+        return boxes
+
+    serve(detect)
 
 
 if __name__ == "__main__":
