@@ -201,7 +201,7 @@ fn torch_top_equals_the_built_in_top() {
     const TOL: f64 = 1e-4;
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/detectors/torch_top.py");
     let models = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/models");
-    let det = format!("torch=python3 '{script}' --models '{models}' --threads 2");
+    let det = format!("torch=python3 '{script}' --models '{models}' --threads 1");
     for t in tokens(2) {
         let detect = |case: &[&str]| {
             let args = [&["detect", "--dataset", DATA, "--sample", &t, "--json"][..], case].concat();
