@@ -183,6 +183,63 @@ fn sweep_runs_top_ext_and_the_refiner_on_ext() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The PyTorch LiDAR-Top of `examples/detectors/torch_top.py` serves the boxes of the built-in
+/// `top` case: on two samples the same count and, matched by order (both highest score first,
+/// NMS's visiting order), every centre, size, yaw (as an angle) and score within 1e-4; they agree
+/// to ~4e-6 (float32 rounding of the convolutions). Skipped, with a message, where python3 has no
+/// torch.
+#[test]
+fn torch_top_equals_the_built_in_top() {
+    let has_torch = std::process::Command::new("python3")
+        .args(["-c", "import torch, numpy"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_torch {
+        println!("skipped torch_top_equals_the_built_in_top: `python3 -c \"import torch, numpy\"` fails");
+        return;
+    }
+    const TOL: f64 = 1e-4;
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/detectors/torch_top.py");
+    let models = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/models");
+    let det = format!("torch=python3 '{script}' --models '{models}' --threads 1");
+    for t in tokens(2) {
+        let detect = |case: &[&str]| {
+            let args = [&["detect", "--dataset", DATA, "--sample", &t, "--json"][..], case].concat();
+            ok_json(&args)["detections"].as_array().unwrap().clone()
+        };
+        let top = detect(&["--case", "top"]);
+        let torch = detect(&["--case", "ext:torch", "--detector", &det]);
+        assert!(!top.is_empty(), "{t}: LiDAR-Top found nothing");
+        assert_eq!(top.len(), torch.len(), "{t}: box counts");
+        let num = |v: &serde_json::Value| v.as_f64().unwrap();
+        for (i, (a, b)) in top.iter().zip(&torch).enumerate() {
+            assert_eq!(a["category"], b["category"], "{t} box {i}");
+            let fields = |d: &serde_json::Value| -> Vec<f64> {
+                let mut f: Vec<f64> = ["center", "size_lwh"]
+                    .iter()
+                    .flat_map(|k| d[k].as_array().unwrap().iter().map(num))
+                    .collect();
+                f.extend([num(&d["yaw"]), num(&d["score"])]);
+                f
+            };
+            let (fa, fb) = (fields(a), fields(b));
+            assert_eq!(fa.len(), 8);
+            for (k, (x, y)) in fa.iter().zip(&fb).enumerate() {
+                // Yaw as an angle: π and −π are one heading.
+                let d = if k == 6 {
+                    mlod::geometry::wrap_angle(x - y).abs()
+                } else {
+                    (x - y).abs()
+                };
+                assert!(
+                    d <= TOL,
+                    "{t} box {i} field {k} (x y z l w h yaw score): built-in {x} vs torch {y}"
+                );
+            }
+        }
+    }
+}
+
 /// Processes whose command line holds `marker`.
 fn alive(marker: &str) -> usize {
     let Ok(rd) = std::fs::read_dir("/proc") else {
