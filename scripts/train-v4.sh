@@ -40,4 +40,38 @@ for c in "${cases[@]}"; do
     --checkpoint "$out/$c.ckpt.safetensors" "${resume[@]}" >> "$out/train-$c.log" 2>&1
   printf '%s\t%s\n' "$c" "$(( $(date +%s) - t0 ))" >> "$out/times.tsv"
 done
+
+# Phase 2, once all five stage-1 models exist: Result Fusion's temperatures, box voting, the
+# refiners' proposals, both refiners and their decoding, and the training data's summary. Each
+# stage leaves OUT/.done-NAME and is skipped when that is there.
+for c in top input left right feature; do
+  [ -f "$out/$c.safetensors" ] || { echo "stage 1 incomplete ($c missing): phase 2 waits"; exit 0; }
+done
+stage() {
+  local name=$1
+  shift
+  if [ -f "$out/.done-$name" ]; then
+    echo "$name: done"
+    return 0
+  fi
+  echo "$name: running"
+  local t0
+  t0=$(date +%s)
+  "$@" >> "$out/$name.log" 2>&1
+  printf '%s\t%s\n' "$name" "$(( $(date +%s) - t0 ))" >> "$out/times.tsv"
+  touch "$out/.done-$name"
+}
+stage temperature "$bin" train calibrate-temperature --dataset "$data/train" --models "$out"
+stage vote "$bin" train tune-vote --dataset "$data/train" --models "$out"
+stage proposals "$bin" train proposals --dataset "$data/train" --models "$out" --out "$out/proposals"
+refiner_resume=()
+[ -f "$out/refiner.ckpt.safetensors" ] && refiner_resume=(--resume)
+stage refiner "$bin" train refiner --dataset "$data/train" --proposals "$out/proposals" \
+  --out "$out/refiner.safetensors" --steps 6000 --seed 0 --log-every 10 "${refiner_resume[@]}"
+notrace_resume=()
+[ -f "$out/refiner-notrace.ckpt.safetensors" ] && notrace_resume=(--resume)
+stage refiner-notrace "$bin" train refiner --dataset "$data/train" --proposals "$out/proposals" \
+  --out "$out/refiner-notrace.safetensors" --steps 6000 --seed 0 --log-every 10 --no-trace "${notrace_resume[@]}"
+stage tune-refiner "$bin" train tune-refiner --dataset "$data/train" --models "$out"
+stage stats "$bin" stats --dataset "$data/train" --samples 200 --summary --update-manifest "$out"
 echo "all done"

@@ -194,6 +194,9 @@ def voxelize(grid, x, y, z, intensity):
     cnt = count[occ].astype(np.float32)
     flat[:nz * cols][occ] = np.log1p(cnt)
     flat[nz * cols:2 * nz * cols][occ] = seq_sum(v, fz - iz.astype(np.float32), nz * cols)[occ] / cnt
+    # Models trained with --no-intensity keep the channel at zero (voxel.rs: `intensity: false`).
+    if not grid.get("intensity", True):
+        inten = np.zeros_like(inten)
     isum = seq_sum(c, inten, cols)
     cocc = col_count > 0
     flat[2 * nz * cols:2 * nz * cols + cols][cocc] = isum[cocc] / (f32(255.0) * col_count[cocc].astype(np.float32))
