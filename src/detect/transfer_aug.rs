@@ -10,7 +10,10 @@
 //!   sensor (SECOND's global scaling);
 //! - **density**: with probability 0.5, every point is kept with one probability U(0.5, 1) (a
 //!   sparser sensor, or the same car farther away). Dropped points become NaN, which the voxeliser
-//!   and the point-in-box counts skip, so the fused cloud's per-LiDAR ranges stay valid.
+//!   and the point-in-box counts skip, so the fused cloud's per-LiDAR ranges stay valid;
+//! - **tilt**: with probability 0.5, the cloud is pitched by U(−1.5°, 1.5°) and rolled by
+//!   U(−1°, 1°) about the sensor (a road that climbs or falls away, a car that pitches: a car
+//!   35 m ahead sits up to 0.9 m higher or lower); box centres follow, boxes stay upright.
 //!
 //! Everything is drawn from the step's own ChaCha8 stream, so a resumed run repeats it exactly.
 
@@ -31,6 +34,8 @@ pub struct TransferAug {
     pub keep: f32,
     /// Seed of the per-point keep draws.
     pub point_seed: u64,
+    /// Pitch (about y) and roll (about x), rad.
+    pub tilt: [f32; 2],
 }
 
 impl TransferAug {
@@ -55,11 +60,21 @@ impl TransferAug {
         } else {
             1.0
         };
+        let point_seed = rng.random();
+        let tilt = if rng.random_bool(0.5) {
+            [
+                rng.random_range(-1.5f32..=1.5).to_radians(),
+                rng.random_range(-1.0f32..=1.0).to_radians(),
+            ]
+        } else {
+            [0.0, 0.0]
+        };
         Self {
             object_scales,
             global_scale,
             keep,
-            point_seed: rng.random(),
+            point_seed,
+            tilt,
         }
     }
 
@@ -104,6 +119,22 @@ impl TransferAug {
                 }
             }
         }
+        if self.tilt != [0.0, 0.0] {
+            let rot = |p: [f32; 3]| -> [f32; 3] {
+                let (sp, cp) = self.tilt[0].sin_cos();
+                let (sr, cr) = self.tilt[1].sin_cos();
+                // Pitch about y, then roll about x.
+                let (x, z) = (cp * p[0] + sp * p[2], -sp * p[0] + cp * p[2]);
+                let (y, z) = (cr * p[1] - sr * z, sr * p[1] + cr * z);
+                [x, y, z]
+            };
+            for i in 0..n {
+                [cloud.x[i], cloud.y[i], cloud.z[i]] = rot([cloud.x[i], cloud.y[i], cloud.z[i]]);
+            }
+            for b in boxes.iter_mut() {
+                [b[0], b[1], b[2]] = rot([b[0], b[1], b[2]]);
+            }
+        }
         if self.keep < 1.0 {
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(self.point_seed);
             for i in 0..n {
@@ -146,6 +177,7 @@ mod tests {
             global_scale: 1.0,
             keep: 1.0,
             point_seed: 0,
+            tilt: [0.0, 0.0],
         };
         aug.apply(&mut c, &mut boxes);
         let b = boxes[0];
@@ -171,6 +203,7 @@ mod tests {
             global_scale: 1.05,
             keep: 0.6,
             point_seed: 9,
+            tilt: [0.0, 0.0],
         };
         aug.apply(&mut c, &mut boxes);
         assert!((boxes[0][0] - 10.5).abs() < 1e-5 && (boxes[0][3] - 4.2).abs() < 1e-5);
@@ -187,6 +220,25 @@ mod tests {
             },
         );
         assert_eq!(bev.points_used, kept);
+        // A pitch lifts what lies ahead: −1° raises a point 30 m ahead by 30·sin 1°.
+        let mut c = cloud(&[[30.0, 0.0, -1.8]]);
+        let mut boxes = [[30.0f32, 0.0, -1.0, 4.0, 2.0, 1.6, 0.0]];
+        let tilt = TransferAug {
+            object_scales: vec![1.0],
+            global_scale: 1.0,
+            keep: 1.0,
+            point_seed: 0,
+            tilt: [-1f32.to_radians(), 0.0],
+        };
+        tilt.apply(&mut c, &mut boxes);
+        let lift = 30.0 * 1f32.to_radians().sin();
+        assert!(
+            (c.z[0] - (-1.8 * 1f32.to_radians().cos() + lift)).abs() < 1e-4,
+            "{}",
+            c.z[0]
+        );
+        assert!((boxes[0][2] - c.z[0] - 0.8 * 1f32.to_radians().cos()).abs() < 1e-3);
+        assert_eq!(boxes[0][3..], [4.0, 2.0, 1.6, 0.0], "size and yaw kept");
         // The draw is reproducible for a stream.
         let a = TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4);
         assert_eq!(a, TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4));
