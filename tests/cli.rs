@@ -7,6 +7,8 @@ use std::process::Command;
 mod cluster;
 #[path = "cli/external.rs"]
 mod external;
+#[path = "cli/transfer.rs"]
+mod transfer;
 
 fn mlod(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_mlod"))
