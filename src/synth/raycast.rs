@@ -255,7 +255,7 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
         })
         .collect();
     // Column idx of LiDAR l starts at offsets[l].
-    let mut offsets = vec![0usize; LIDAR_COUNT + 1];
+    let mut offsets = [0usize; LIDAR_COUNT + 1];
     for l in 0..LIDAR_COUNT {
         offsets[l + 1] = offsets[l] + lidar_beams[l].1;
     }
