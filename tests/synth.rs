@@ -372,7 +372,7 @@ fn tables_are_complete_and_linked_and_the_loader_reads_them_back() {
         assert!(name.starts_with(&prefix) && name.ends_with(".bin"), "{name}");
         assert_eq!(name[prefix.len()..name.len() - 4].len(), 19, "{name}");
         let size = std::fs::metadata(dir.join(name)).unwrap().len();
-        assert!(size > 0 && size % 20 == 0);
+        assert!(size > 0 && size.is_multiple_of(20));
         channel_of.insert(sd["token"].as_str().unwrap().to_owned(), channel.to_owned());
     }
     for sd in sample_data.iter().filter(|sd| sd["prev"] == "") {

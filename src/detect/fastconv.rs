@@ -46,10 +46,10 @@ fn dims4(l: &Layout) -> Result<[usize; 4]> {
 /// A row-major view: element (i, j) at `off + i·rs + j·cs`.
 #[derive(Clone, Copy)]
 pub(crate) struct Mat {
-    rows: usize,
-    cols: usize,
-    rs: usize,
-    cs: usize,
+    pub(crate) rows: usize,
+    pub(crate) cols: usize,
+    pub(crate) rs: usize,
+    pub(crate) cs: usize,
 }
 
 impl Mat {
@@ -77,7 +77,7 @@ impl Mat {
         Self { rows, cols, rs, cs }
     }
 
-    fn fits(&self, len: usize) -> bool {
+    pub(crate) fn fits(&self, len: usize) -> bool {
         self.rows == 0 || self.cols == 0 || (self.rows - 1) * self.rs + (self.cols - 1) * self.cs < len
     }
 }

@@ -6,7 +6,8 @@
 use candle_core::Result;
 use rayon::prelude::*;
 
-use crate::detect::fastconv::{deconv_permute, gemm_into, Geom, Mat};
+use super::kernel::gemm as gemm_into;
+use crate::detect::fastconv::{deconv_permute, Geom, Mat};
 
 /// candle_nn's BatchNorm defaults, which the candle graph trains with.
 const BN_EPS: f32 = 1e-5;

@@ -562,7 +562,7 @@ impl SceneRenderer {
         if let Some(target) = self.targets.get_mut(&target_id) {
             target.last_used = frame;
         }
-        if frame % 64 == 0 {
+        if frame.is_multiple_of(64) {
             self.scenes.retain(|_, s| frame - s.last_used < EVICT_AFTER);
             self.targets.retain(|_, t| frame - t.last_used < EVICT_AFTER);
         }
