@@ -282,10 +282,6 @@ fn print_lidar(l: &LidarStats) {
     );
 }
 
-/// Prints on stderr, as `note: …`, what differs between `dataset` (summarised over
-/// [`NOTE_SAMPLES`] samples) and the training data's summary in `models_dir`'s manifest. Silent
-/// when the manifest has no summary or the dataset cannot be summarised (the command's own work
-/// reports such errors).
 /// Whether the models folder's LiDAR-Top reads intensity (models trained with `--no-intensity`
 /// do not, and need no note about it); true when it cannot tell.
 fn models_use_intensity(models_dir: &Path) -> bool {
@@ -303,6 +299,10 @@ fn models_use_intensity(models_dir: &Path) -> bool {
     config().is_none_or(|c| c.grid.intensity)
 }
 
+/// Prints on stderr, as `note: …`, what differs between `dataset` (summarised over
+/// [`NOTE_SAMPLES`] samples) and the training data's summary in `models_dir`'s manifest. Silent
+/// when the manifest has no summary or the dataset cannot be summarised (the command's own work
+/// reports such errors).
 pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     let Ok(Some(trained)) = mlod::detect::weights::read_training_stats(models_dir) else {
         return;
@@ -311,8 +311,9 @@ pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
         return;
     };
     let mut notes = mlod::dataset::out_of_depth_notes(&trained, &data);
-    if !models_use_intensity(models_dir) {
-        notes.retain(|n| !n.starts_with("intensity"));
+    let about_intensity = |n: &String| n.starts_with("intensity");
+    if notes.iter().any(about_intensity) && !models_use_intensity(models_dir) {
+        notes.retain(|n| !about_intensity(n));
     }
     if notes.is_empty() {
         return;

@@ -70,6 +70,15 @@ fn bev_dist(a: &Detection, b: &Detection) -> f64 {
     (pa[0] - pb[0]).hypot(pa[1] - pb[1])
 }
 
+/// Centre distance as a similarity (−distance, predictions × boxes), for [`match_with_ious`]
+/// with the threshold −`centre_dist`.
+fn centre_similarity(preds: &[&Detection], gts: &[&Detection]) -> Vec<f64> {
+    preds
+        .iter()
+        .flat_map(|p| gts.iter().map(move |g| -bev_dist(p, g)))
+        .collect()
+}
+
 fn pct(k: usize, n: usize) -> Option<f64> {
     (n > 0).then(|| 100.0 * k as f64 / n as f64)
 }
@@ -103,11 +112,7 @@ pub fn transfer_check(samples: &[SampleBoxes], rule: &TransferRule) -> TransferR
         let gts: Vec<&Detection> = s.gts.iter().filter(|d| d.category == rule.category).collect();
         let in_range = |d: &Detection| d.box3d.bev_range() < rule.max_range;
         boxes += gts.iter().filter(|g| in_range(g)).count();
-        // Centre distance as a similarity: −distance ≥ −centre_dist.
-        let sim: Vec<f64> = preds
-            .iter()
-            .flat_map(|p| gts.iter().map(move |g| -bev_dist(p, g)))
-            .collect();
+        let sim = centre_similarity(&preds, &gts);
         let (po, _) = matched(&preds, &gts, &sim, -rule.centre_dist, rule.max_range);
         for (p, o) in preds.iter().zip(&po) {
             match o {
@@ -121,16 +126,8 @@ pub fn transfer_check(samples: &[SampleBoxes], rule: &TransferRule) -> TransferR
             .copied()
             .filter(|p| p.score >= rule.min_score)
             .collect();
-        let (_, go) = matched(
-            &confident,
-            &gts,
-            &confident
-                .iter()
-                .flat_map(|p| gts.iter().map(move |g| -bev_dist(p, g)))
-                .collect::<Vec<_>>(),
-            -rule.centre_dist,
-            rule.max_range,
-        );
+        let sim = centre_similarity(&confident, &gts);
+        let (_, go) = matched(&confident, &gts, &sim, -rule.centre_dist, rule.max_range);
         found += go
             .iter()
             .filter(|o| matches!(o, GtOutcome::Matched { .. }))

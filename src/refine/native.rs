@@ -33,7 +33,9 @@ use crate::detect::fastconv::Mat;
 use crate::detect::native::kernel::gemm as gemm_into;
 use crate::detect::native::layers::{sum8, BnRelu, Param};
 use crate::detect::native::loss::{focal, smooth_l1};
-use crate::detect::native::state::{params_of, stats_of, store_stats, FlatAdamW, TensorIndex};
+use crate::detect::native::state::{
+    gradient_of, params_of, stats_of, store_stats, value_of, FlatAdamW, TensorIndex,
+};
 use crate::detect::optim::AdamW;
 
 /// The loss terms of one step, as the trainer logs them (eq. 17).
@@ -562,18 +564,11 @@ impl NativeRefiner {
 
     /// The gradient of tensor `name` from the last step, if the step reached it.
     pub fn gradient(&self, name: &str) -> Option<&[f32]> {
-        self.params
-            .iter()
-            .find(|p| p.name == name && p.has_grad)
-            .map(|p| p.grad.as_slice())
+        gradient_of(&self.params, name)
     }
 
     /// A tensor's current value (trainable or running statistic).
     pub fn value(&self, name: &str) -> Option<&[f32]> {
-        self.params
-            .iter()
-            .chain(&self.stats)
-            .find(|p| p.name == name)
-            .map(|p| p.value.as_slice())
+        value_of(&self.params, &self.stats, name)
     }
 }

@@ -163,65 +163,81 @@ pub enum CarSizes {
     Mixed,
 }
 
-/// A car of the `Mixed` size distribution: one of four body types.
-fn mixed_car(rng: &mut impl Rng) -> ActorShape {
-    let u: f64 = rng.random_range(0.0..1.0);
-    let (l, w, h, cabin) = if u < 0.15 {
-        let c = Cabin {
+/// One body type of the `Mixed` car sizes: drawn while u < `up_to` (u uniform in [0, 1)), with
+/// length, width and height uniform in their ranges (m) and its cabin.
+struct BodyType {
+    up_to: f64,
+    l: (f64, f64),
+    w: (f64, f64),
+    h: (f64, f64),
+    cabin: Cabin,
+}
+
+/// Compact, sedan, SUV, pickup (the cabin forward of the middle, the bed behind it at belt
+/// height).
+const BODY_TYPES: [BodyType; 4] = [
+    BodyType {
+        up_to: 0.15,
+        l: (3.6, 4.3),
+        w: (1.65, 1.8),
+        h: (1.4, 1.55),
+        cabin: Cabin {
             belt: 0.5,
             length: 0.6,
             x: -0.02,
             width: 0.43,
-        };
-        (
-            rng.random_range(3.6..4.3),
-            rng.random_range(1.65..1.8),
-            rng.random_range(1.4..1.55),
-            c,
-        )
-    } else if u < 0.45 {
-        let c = Cabin {
+        },
+    },
+    BodyType {
+        up_to: 0.45,
+        l: (4.4, 4.95),
+        w: (1.78, 1.9),
+        h: (1.4, 1.5),
+        cabin: Cabin {
             belt: 0.52,
             length: 0.52,
             x: -0.05,
             width: 0.43,
-        };
-        (
-            rng.random_range(4.4..4.95),
-            rng.random_range(1.78..1.9),
-            rng.random_range(1.4..1.5),
-            c,
-        )
-    } else if u < 0.85 {
-        let c = Cabin {
+        },
+    },
+    BodyType {
+        up_to: 0.85,
+        l: (4.4, 5.1),
+        w: (1.85, 2.05),
+        h: (1.7, 1.9),
+        cabin: Cabin {
             belt: 0.5,
             length: 0.66,
             x: -0.08,
             width: 0.44,
-        };
-        (
-            rng.random_range(4.4..5.1),
-            rng.random_range(1.85..2.05),
-            rng.random_range(1.7..1.9),
-            c,
-        )
-    } else {
-        // Pickup: the cabin forward of the middle, the bed behind it at belt height.
-        let c = Cabin {
+        },
+    },
+    BodyType {
+        up_to: 1.0,
+        l: (5.3, 5.9),
+        w: (1.95, 2.1),
+        h: (1.8, 1.95),
+        cabin: Cabin {
             belt: 0.55,
             length: 0.36,
             x: 0.12,
             width: 0.44,
-        };
-        (
-            rng.random_range(5.3..5.9),
-            rng.random_range(1.95..2.1),
-            rng.random_range(1.8..1.95),
-            c,
-        )
-    };
+        },
+    },
+];
+
+/// A car of the `Mixed` size distribution: one of [`BODY_TYPES`].
+fn mixed_car(rng: &mut impl Rng) -> ActorShape {
+    let u: f64 = rng.random_range(0.0..1.0);
+    let body = BODY_TYPES
+        .iter()
+        .find(|b| u < b.up_to)
+        .unwrap_or(&BODY_TYPES[BODY_TYPES.len() - 1]);
+    let l = rng.random_range(body.l.0..body.l.1);
+    let w = rng.random_range(body.w.0..body.w.1);
+    let h = rng.random_range(body.h.0..body.h.1);
     let rho = paint(rng);
-    cabin_vehicle(mm(l), mm(w), mm(h), cabin, rho)
+    cabin_vehicle(mm(l), mm(w), mm(h), body.cabin, rho)
 }
 
 /// Builds a random shape of a category, cars drawn as `car_sizes` says.

@@ -26,7 +26,7 @@ pub(crate) mod testutil;
 
 use self::layers::{ConvBn, DeconvBn, Heads, Param};
 use self::loss::{loss_and_grad, LossTerms};
-use self::state::{params_of, stats_of, store_stats, FlatAdamW, TensorIndex};
+use self::state::{gradient_of, params_of, stats_of, store_stats, value_of, FlatAdamW, TensorIndex};
 use super::fastconv::Geom;
 use super::model::Stage1Model;
 use super::net::branch_prefix;
@@ -365,19 +365,12 @@ impl NativeTrainer {
 
     /// The gradient of tensor `name` from the last step, if the step reached it.
     pub fn gradient(&self, name: &str) -> Option<&[f32]> {
-        self.params
-            .iter()
-            .find(|p| p.name == name && p.has_grad)
-            .map(|p| p.grad.as_slice())
+        gradient_of(&self.params, name)
     }
 
     /// A tensor's current value (trainable or running statistic).
     pub fn value(&self, name: &str) -> Option<&[f32]> {
-        self.params
-            .iter()
-            .chain(&self.stats)
-            .find(|p| p.name == name)
-            .map(|p| p.value.as_slice())
+        value_of(&self.params, &self.stats, name)
     }
 }
 

@@ -212,3 +212,20 @@ impl FlatAdamW {
         Ok(())
     }
 }
+
+/// The gradient of tensor `name` among `params` from the last step, if the step reached it.
+pub fn gradient_of<'a>(params: &'a [Param], name: &str) -> Option<&'a [f32]> {
+    params
+        .iter()
+        .find(|p| p.name == name && p.has_grad)
+        .map(|p| p.grad.as_slice())
+}
+
+/// Tensor `name`'s current value among `params` and the running statistics `stats`.
+pub fn value_of<'a>(params: &'a [Param], stats: &'a [Param], name: &str) -> Option<&'a [f32]> {
+    params
+        .iter()
+        .chain(stats)
+        .find(|p| p.name == name)
+        .map(|p| p.value.as_slice())
+}
