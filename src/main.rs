@@ -69,7 +69,7 @@ enum Command {
     #[command(subcommand, after_help = cli::TRAIN_EXAMPLES)]
     Train(train::TrainCommand),
     /// Run a stage-1 detector (shipped weights) on one sample and print its boxes.
-    #[command(after_help = cli::DETECT_EXAMPLES)]
+    #[command(after_help = cli::detect_help())]
     Detect(detect::DetectArgs),
     /// Score predictions against a dataset's ground truth: KITTI-style AP_3D as the paper reports it
     /// (§V-A-2, in percent) and Lyft's official mAP (devkit footprint and exact footprint).

@@ -298,35 +298,38 @@ fn read_unit(dir: &Path, u: &Unit) -> Option<UnitResult> {
     serde_json::from_slice(&bytes).ok()
 }
 
-/// The stage-1 network a case runs (Input Fusion for `input-drop`).
-fn base_case(c: Case) -> Case {
+/// The stage-1 networks a case runs (Input Fusion for `input-drop`; LiDAR-Top and a fusion case
+/// for a proposal union).
+fn base_cases(c: Case) -> Vec<Case> {
     match c {
-        Case::InputDrop => Case::Input,
-        c => c.without_oc().stage1(),
+        Case::InputDrop => vec![Case::Input],
+        c => c.without_oc().proposal_cases(),
     }
 }
 
 /// The shipped detectors a sweep needs, loaded once.
 struct Detectors {
     stage1: HashMap<Case, Box<dyn Detector>>,
-    /// The refiner of each kind an MLOD case needs, keyed by whether it sees tr(Ξ).
-    refiners: HashMap<bool, Arc<Refiner>>,
+    /// The refiner of each kind an MLOD case needs, keyed by whether it sees tr(Ξ) and whether
+    /// it refines a proposal union (NMS after it).
+    refiners: HashMap<(bool, bool), Arc<Refiner>>,
 }
 
 impl Detectors {
     fn load(models: &Path, cases: &[Case]) -> Result<Self, SweepError> {
         let mut stage1 = HashMap::new();
-        for c in cases {
-            let base = base_case(*c);
+        for base in cases.iter().flat_map(|c| base_cases(*c)) {
             if let std::collections::hash_map::Entry::Vacant(e) = stage1.entry(base) {
                 e.insert(load_detector_with(models, base, Voting::Manifest)?);
             }
         }
         let mut refiners = HashMap::new();
         for c in cases.iter().filter(|c| c.is_mlod()) {
-            if let std::collections::hash_map::Entry::Vacant(e) = refiners.entry(c.refiner_sees_trace()) {
-                let r =
+            let key = (c.refiner_sees_trace(), c.is_union());
+            if let std::collections::hash_map::Entry::Vacant(e) = refiners.entry(key) {
+                let mut r =
                     Refiner::load_shipped_for(models, *c).map_err(|e| DetectError::Refiner(e.to_string()))?;
+                r.decoding = r.decoding.for_case(*c);
                 e.insert(Arc::new(r));
             }
         }
@@ -368,34 +371,40 @@ fn detect_sample(
     }
     for &case in cases.iter().filter(|c| **c != Case::InputDrop) {
         let oc = case.is_oc();
-        let base = case.without_oc().stage1();
         let cloud = if oc {
             corrected.as_ref().unwrap_or(&drifted)
         } else {
             &drifted
         };
-        let props = match proposals.entry((base, oc)) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => {
+        for base in base_cases(case) {
+            if let std::collections::hash_map::Entry::Vacant(e) = proposals.entry((base, oc)) {
                 let d = det
                     .stage1
                     .get(&base)
                     .ok_or_else(|| SweepError::BadParameter(format!("no detector for {base}")))?;
-                e.insert(d.detect_fused(&frame, cloud)?)
+                e.insert(d.detect_fused(&frame, cloud)?);
             }
+        }
+        let lists: Vec<&[Detection]> = base_cases(case)
+            .iter()
+            .filter_map(|b| proposals.get(&(*b, oc)).map(|v| v.as_slice()))
+            .collect();
+        let props = match lists.as_slice() {
+            [one] => one.to_vec(),
+            many => crate::detect::union::union_of(many),
         };
         let dets = if case.is_mlod() {
             let r = det
                 .refiners
-                .get(&case.refiner_sees_trace())
+                .get(&(case.refiner_sees_trace(), case.is_union()))
                 .ok_or_else(|| SweepError::BadParameter(format!("no refiner for {case}")))?;
-            r.refine(cloud, props)
+            r.refine(cloud, &props)
                 .map_err(|e| DetectError::Refiner(e.to_string()))?
                 .into_iter()
                 .map(|r| r.detection)
                 .collect()
         } else {
-            props.clone()
+            props
         };
         out.insert(case, dets);
     }

@@ -190,3 +190,38 @@ fn shipped_refiner_reproduces_committed_refinements() {
         }
     }
 }
+
+/// MLOD-U (issue 32) refines exactly the union of LiDAR-Top's and Input Fusion's proposals, and
+/// its NMS after refinement leaves no two boxes overlapping by more than its IoU.
+#[test]
+fn the_union_case_refines_both_views_proposals() {
+    let models = default_models_dir();
+    let Ok(manifest) = Manifest::load(&models) else {
+        return;
+    };
+    if manifest.refiner.is_none() || !manifest.models.contains_key(&Case::Input) {
+        return;
+    }
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+    let frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(0.1, 2).unwrap(),
+        ..Default::default()
+    };
+    let m = mlod::refine::load_mlod(&models, Case::MlodU, Default::default()).unwrap();
+    let run = m.run(&frame, &params).unwrap();
+    let top = load_detector(&models, Case::Top).unwrap().detect(&frame, &params).unwrap();
+    let input = load_detector(&models, Case::Input).unwrap().detect(&frame, &params).unwrap();
+    assert!(!top.is_empty() && !input.is_empty());
+    let union = mlod::detect::union::union_of(&[&top, &input]);
+    assert_eq!(run.proposals, union);
+    assert!(!run.refined.is_empty() && run.refined.len() < union.len());
+    let iou = mlod::detect::union::UNION_NMS_IOU;
+    for (i, a) in run.refined.iter().enumerate() {
+        for b in &run.refined[i + 1..] {
+            let o = mlod::geometry::iou_3d(&a.detection.box3d, &b.detection.box3d);
+            assert!(o <= iou + 1e-9, "two refined boxes overlap by {o}");
+        }
+    }
+    assert_eq!(m.refiner().decoding.nms_iou, Some(iou));
+}

@@ -98,9 +98,8 @@ pub struct DetectArgs {
     /// Sample token (default: the first sample in scene order).
     #[arg(long)]
     sample: Option<String>,
-    /// The case: top, left, right, input, feature, result, mlod-i, mlod-f, mlod-r, their (OC)
-    /// variants (input-oc, …, mlod-r-oc), input-drop, mlod-i-notrace, or an external detector
-    /// ext:NAME / mlod-ext:NAME (with --detector or --detectors; docs/external.md).
+    /// The case: one of the cases listed below, or an external detector ext:NAME /
+    /// mlod-ext:NAME (with --detector or --detectors; docs/external.md).
     #[arg(long)]
     case: Case,
     #[command(flatten)]

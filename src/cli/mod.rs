@@ -116,6 +116,18 @@ Examples:
   mlod detect --dataset sample_data --case input --json
   mlod detect --dataset sample_data --case result --alpha 0.04 --seed 0 --format lyft";
 
+/// `mlod detect --help`'s epilogue: every case with its one-line description, then the examples.
+pub fn detect_help() -> String {
+    let mut s = String::from("Cases:\n");
+    for c in mlod::detect::Case::WITH_OC {
+        s.push_str(&format!("  {:<15} {}: {}\n", c.as_str(), c.paper_name(), c.description()));
+    }
+    s.push_str("  ext:NAME        an external detector over mlod-detector/1 (docs/external.md)\n");
+    s.push_str("  mlod-ext:NAME   the refiner on an external detector's proposals\n\n");
+    s.push_str(DETECT_EXAMPLES);
+    s
+}
+
 pub const EVAL_EXAMPLES: &str = "\
 Examples:
   mlod eval --dataset data/test --pred predictions.json  a Lyft-format prediction file

@@ -166,6 +166,10 @@ pub struct TuneRefinerArgs {
     /// At most this many validation samples.
     #[arg(long)]
     samples: Option<usize>,
+    /// The union cases' NMS IoUs tried after refinement (`mlod-u`, with the chosen score rule;
+    /// comma separated). Needs LiDAR-Top and Input Fusion in the models folder.
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.7")]
+    union_nms: Vec<f64>,
 }
 
 /// `mlod train tune-refiner`: MLOD-I/F/R over the validation scenes at each α, every decoding
@@ -187,7 +191,11 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
     let tokens = super::eval::evaluated_tokens(&dataset, &a.dataset, &opts)?;
     let mut candidates = Vec::new();
     for score in ScoreRule::ALL {
-        candidates.push(Decoding { score, nms_iou: None });
+        candidates.push(Decoding {
+            score,
+            nms_iou: None,
+            ..Decoding::default()
+        });
         for &v in &a.nms {
             if !(v > 0.0 && v <= 1.0) {
                 anyhow::bail!("--nms {v} is not an IoU in (0, 1]");
@@ -195,6 +203,7 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
             candidates.push(Decoding {
                 score,
                 nms_iou: Some(v),
+                ..Decoding::default()
             });
         }
     }
@@ -238,17 +247,64 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
         }
     }
     let (d, mean) = best.context("no candidate")?;
-    let mut manifest = Manifest::load(&models)?;
+    // The union case's NMS, with the chosen score rule (issue 32).
+    let mut union_best: Option<(f64, f64)> = None;
+    let manifest = Manifest::load(&models)?;
+    if [Case::Top, Case::Input].iter().all(|c| manifest.models.contains_key(c)) {
+        let union = load_mlod(&models, Case::MlodU, Voting::Manifest)?;
+        let mut per_iou: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+        for &alpha in &a.alphas {
+            let params = mlod::pipeline::FuseParams {
+                perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
+                ..Default::default()
+            };
+            let runs: Vec<(String, mlod::refine::MlodRun)> = tokens
+                .par_iter()
+                .map(|t| -> Result<_> { Ok((t.clone(), union.run(&dataset.frame(t)?, &params)?)) })
+                .collect::<Result<_>>()?;
+            for &v in &a.union_nms {
+                if !(v > 0.0 && v <= 1.0) {
+                    anyhow::bail!("--union-nms {v} is not an IoU in (0, 1]");
+                }
+                let dd = Decoding {
+                    nms_iou: Some(v),
+                    ..d
+                };
+                let dets: HashMap<String, Vec<mlod::detect::Detection>> =
+                    runs.iter().map(|(t, r)| (t.clone(), redecode(r, dd))).collect();
+                let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+                let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).unwrap_or(0.0);
+                eprintln!("{} α {alpha} nms {v}: {ap:.2}", Case::MlodU.paper_name());
+                per_iou
+                    .entry(format!("union+nms{v}"))
+                    .or_default()
+                    .insert(format!("{}@{alpha}", Case::MlodU), ap);
+            }
+        }
+        for &v in &a.union_nms {
+            let per = per_iou.entry(format!("union+nms{v}")).or_default();
+            let m = per.values().sum::<f64>() / per.len().max(1) as f64;
+            per.insert("mean".into(), m);
+            println!("union+nms{v:<10} mean car moderate AP_3D@0.7 {m:.2}");
+            if union_best.is_none_or(|(_, b)| m > b) {
+                union_best = Some((v, m));
+            }
+        }
+        validation.extend(per_iou);
+    }
+    let mut manifest = manifest;
     manifest.refine = Some(RefineTuning {
         score: d.score.as_str().to_string(),
         nms_iou: d.nms_iou,
+        union_nms_iou: union_best.map(|(v, _)| v),
         command,
         validation,
     });
     manifest.save(&models)?;
     println!(
-        "chose {} ({mean:.2}) -> {}",
+        "chose {} ({mean:.2}){} -> {}",
         name(&d),
+        union_best.map_or(String::new(), |(v, m)| format!(", union cases nms {v} ({m:.2})")),
         models.join(Manifest::FILE).display()
     );
     Ok(())

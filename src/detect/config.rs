@@ -36,7 +36,10 @@ impl ModelConfig {
     pub fn new(case: Case) -> Self {
         Self {
             case,
-            grid: GridConfig::default(),
+            grid: GridConfig {
+                trace: case == Case::InputTr,
+                ..GridConfig::default()
+            },
             net: NetConfig::default(),
             anchor: AnchorConfig::default(),
             score_threshold: 0.05,
@@ -49,7 +52,7 @@ impl ModelConfig {
 
     /// The names of the network branches: one per LiDAR in Feature Fusion, else one.
     pub fn branch_names(&self) -> Vec<&'static str> {
-        match self.case {
+        match self.case.network() {
             Case::Feature => vec!["top", "left", "right"],
             c => vec![c.as_str()],
         }

@@ -35,6 +35,7 @@ pub mod oc;
 pub mod optim;
 pub mod train;
 pub mod transfer_aug;
+pub mod union;
 pub mod voxel;
 pub mod warm_start;
 pub mod weights;
@@ -94,6 +95,21 @@ pub enum Case {
     /// without the tr(Ξ) point feature (`mlod train refiner --no-trace`): what the uncertainty
     /// channel itself brings.
     MlodINoTrace,
+    /// Beyond the paper (issue 32): Input Fusion trained with the perturbation injected (α drawn
+    /// as the refiner's training draws it), so its proposals survive drift.
+    InputPa,
+    /// Beyond the paper: Input Fusion whose voxel features also hold the mean tr(Ξ) of each
+    /// voxel's points, trained under drift: the network learns how far to trust each point.
+    InputTr,
+    /// The refiner on [`Case::InputPa`]'s proposals.
+    MlodIPa,
+    /// The refiner on [`Case::InputTr`]'s proposals.
+    MlodITr,
+    /// The refiner on the union of LiDAR-Top's and Input Fusion's proposals, 3D NMS after it: a
+    /// car that the calibration-free LiDAR-Top still sees is never lost.
+    MlodU,
+    /// The refiner on the union of LiDAR-Top's and [`Case::InputTr`]'s proposals, 3D NMS after.
+    MlodUTr,
     /// `ext:NAME`: the detector NAME, served by another process over `mlod-detector/1`
     /// ([`external`]). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
     Ext(&'static str),
@@ -138,9 +154,20 @@ impl Case {
         Case::MlodROc,
     ];
 
-    /// Every case: [`Case::EVERY`], [`Case::OC`], then the ablations [`Case::InputDrop`] and
-    /// [`Case::MlodINoTrace`].
-    pub const WITH_OC: [Case; 17] = [
+    /// The cases beyond the paper (issue 32): stage 1 trained under drift, tr(Ξ) in stage 1,
+    /// and the proposal union, each with the refiner.
+    pub const BEYOND: [Case; 6] = [
+        Case::InputPa,
+        Case::InputTr,
+        Case::MlodIPa,
+        Case::MlodITr,
+        Case::MlodU,
+        Case::MlodUTr,
+    ];
+
+    /// Every case: [`Case::EVERY`], [`Case::OC`], the ablations [`Case::InputDrop`] and
+    /// [`Case::MlodINoTrace`], then [`Case::BEYOND`].
+    pub const WITH_OC: [Case; 23] = [
         Case::Top,
         Case::Left,
         Case::Right,
@@ -158,6 +185,12 @@ impl Case {
         Case::MlodROc,
         Case::InputDrop,
         Case::MlodINoTrace,
+        Case::InputPa,
+        Case::InputTr,
+        Case::MlodIPa,
+        Case::MlodITr,
+        Case::MlodU,
+        Case::MlodUTr,
     ];
 
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
@@ -170,9 +203,52 @@ impl Case {
             Case::MlodIOc => Case::InputOc,
             Case::MlodFOc => Case::FeatureOc,
             Case::MlodROc => Case::ResultOc,
+            Case::MlodIPa => Case::InputPa,
+            Case::MlodITr | Case::MlodUTr => Case::InputTr,
+            Case::MlodU => Case::Input,
             Case::MlodExt(_) => external::ext_case(self.external_name().unwrap_or_default()),
             c => c,
         }
+    }
+
+    /// Every stage-1 case whose proposals this case refines (or outputs): LiDAR-Top and the
+    /// fusion case for a union case, else [`Case::stage1`] alone.
+    pub fn proposal_cases(self) -> Vec<Case> {
+        match self {
+            Case::MlodU | Case::MlodUTr => vec![Case::Top, self.stage1()],
+            c => vec![c.stage1()],
+        }
+    }
+
+    /// The name of the stage 1 whose proposals this case shows (`LiDAR-Top ∪ Input Fusion` for
+    /// a union case).
+    pub fn proposals_name(self) -> String {
+        self.proposal_cases()
+            .iter()
+            .map(|c| c.paper_name())
+            .collect::<Vec<_>>()
+            .join(" ∪ ")
+    }
+
+    /// Whether this case refines the union of several stage-1 cases' proposals (and so needs
+    /// NMS after refinement: both may propose the same car).
+    pub fn is_union(self) -> bool {
+        matches!(self, Case::MlodU | Case::MlodUTr)
+    }
+
+    /// The network layout and point selection of a trainable case: Input Fusion's for the
+    /// Input Fusion variants beyond the paper (same branch, same weight names), else itself.
+    pub fn network(self) -> Case {
+        match self {
+            Case::InputPa | Case::InputTr => Case::Input,
+            c => c,
+        }
+    }
+
+    /// Whether this case's stage-1 network is trained with the perturbation injected into the
+    /// auxiliary LiDARs (the paper trains stage 1 on calibrated data only).
+    pub fn trains_under_drift(self) -> bool {
+        matches!(self, Case::InputPa | Case::InputTr)
     }
 
     /// The MLOD case built on this fusion scheme, if any.
@@ -181,6 +257,8 @@ impl Case {
             Case::Input => Some(Case::MlodI),
             Case::Feature => Some(Case::MlodF),
             Case::Result => Some(Case::MlodR),
+            Case::InputPa => Some(Case::MlodIPa),
+            Case::InputTr => Some(Case::MlodITr),
             Case::InputOc => Some(Case::MlodIOc),
             Case::FeatureOc => Some(Case::MlodFOc),
             Case::ResultOc => Some(Case::MlodROc),
@@ -192,8 +270,15 @@ impl Case {
     /// Whether this case runs the stage-2 refiner.
     pub fn is_mlod(self) -> bool {
         Case::MLOD.contains(&self.without_oc())
-            || self == Case::MlodINoTrace
-            || matches!(self, Case::MlodExt(_))
+            || matches!(
+                self,
+                Case::MlodINoTrace
+                    | Case::MlodExt(_)
+                    | Case::MlodIPa
+                    | Case::MlodITr
+                    | Case::MlodU
+                    | Case::MlodUTr
+            )
     }
 
     /// The external detector's name of an `ext:NAME` or `mlod-ext:NAME` case.
@@ -254,6 +339,12 @@ impl Case {
             Case::MlodROc => "mlod-r-oc",
             Case::InputDrop => "input-drop",
             Case::MlodINoTrace => "mlod-i-notrace",
+            Case::InputPa => "input-pa",
+            Case::InputTr => "input-tr",
+            Case::MlodIPa => "mlod-i-pa",
+            Case::MlodITr => "mlod-i-tr",
+            Case::MlodU => "mlod-u",
+            Case::MlodUTr => "mlod-u-tr",
             Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
@@ -278,7 +369,44 @@ impl Case {
             Case::MlodROc => "MLOD-R (OC)",
             Case::InputDrop => "Input Fusion, uncertain points dropped",
             Case::MlodINoTrace => "MLOD-I without tr(Ξ)",
+            Case::InputPa => "Input Fusion, trained under drift",
+            Case::InputTr => "Input Fusion with tr(Ξ) voxels",
+            Case::MlodIPa => "MLOD-I, stage 1 trained under drift",
+            Case::MlodITr => "MLOD-I with tr(Ξ) in stage 1",
+            Case::MlodU => "MLOD-U (Top ∪ Input proposals)",
+            Case::MlodUTr => "MLOD-U with tr(Ξ) in stage 1",
             Case::Ext(s) | Case::MlodExt(s) => s,
+        }
+    }
+
+    /// One line on what the case does (`mlod detect --help`, the window's case tooltip).
+    pub fn description(self) -> &'static str {
+        match self {
+            Case::Top => "the roof LiDAR alone (drift of the others never reaches it)",
+            Case::Left => "LIDAR_FRONT_LEFT alone, in the base frame",
+            Case::Right => "LIDAR_FRONT_RIGHT alone, in the base frame",
+            Case::Input => "all LiDARs' points fused before one network (paper §IV-A-1)",
+            Case::Feature => "one middle-layer branch per LiDAR, max-fused BEV features (§IV-A-2)",
+            Case::Result => "the three single-LiDAR detectors, calibrated, merged by 3D NMS (§IV-A-3)",
+            Case::MlodI => "Input Fusion's proposals refined on the uncertain points (§IV-B)",
+            Case::MlodF => "Feature Fusion's proposals refined on the uncertain points",
+            Case::MlodR => "Result Fusion's proposals refined on the uncertain points",
+            Case::InputOc | Case::FeatureOc | Case::ResultOc => {
+                "online calibration (point-to-plane ICP) first, then the fusion case"
+            }
+            Case::MlodIOc | Case::MlodFOc | Case::MlodROc => {
+                "online calibration (point-to-plane ICP) first, then the MLOD case"
+            }
+            Case::InputDrop => "Input Fusion without the points whose tr(Ξ) is above a threshold",
+            Case::MlodINoTrace => "MLOD-I with a refiner trained without the tr(Ξ) point feature",
+            Case::InputPa => "Input Fusion trained with drift injected (beyond the paper)",
+            Case::InputTr => "Input Fusion with each voxel's mean tr(Ξ) as input, trained under drift",
+            Case::MlodIPa => "the refiner on input-pa's proposals",
+            Case::MlodITr => "the refiner on input-tr's proposals",
+            Case::MlodU => "the refiner on LiDAR-Top's and Input Fusion's proposals together, NMS after",
+            Case::MlodUTr => "the refiner on LiDAR-Top's and input-tr's proposals together, NMS after",
+            Case::Ext(_) => "an external detector over mlod-detector/1",
+            Case::MlodExt(_) => "the refiner on an external detector's proposals",
         }
     }
 
@@ -347,7 +475,13 @@ impl Case {
     pub fn is_trainable(self) -> bool {
         matches!(
             self,
-            Case::Top | Case::Left | Case::Right | Case::Input | Case::Feature
+            Case::Top
+                | Case::Left
+                | Case::Right
+                | Case::Input
+                | Case::Feature
+                | Case::InputPa
+                | Case::InputTr
         )
     }
 }

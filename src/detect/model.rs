@@ -35,7 +35,8 @@ pub fn branch_points<'a>(case: Case, cloud: &'a FusedCloud) -> Vec<Option<Points
         x: &cloud.x[r.clone()],
         y: &cloud.y[r.clone()],
         z: &cloud.z[r.clone()],
-        intensity: &cloud.intensity[r],
+        intensity: &cloud.intensity[r.clone()],
+        trace: cloud.trace.get(r).unwrap_or(&[]),
     };
     let of = |ch: LidarChannel| {
         cloud
@@ -45,7 +46,7 @@ pub fn branch_points<'a>(case: Case, cloud: &'a FusedCloud) -> Vec<Option<Points
             .filter(|l| l.range.end <= cloud.len() && l.range.end <= cloud.intensity.len())
             .map(|l| slice(l.range.clone()))
     };
-    match case {
+    match case.network() {
         Case::Input => vec![Some(slice(0..cloud.len().min(cloud.intensity.len())))],
         Case::Feature => LidarChannel::ALL.iter().map(|c| of(*c)).collect(),
         c => vec![c.channel().and_then(of)],
@@ -483,7 +484,7 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
     }
     Ok(match case {
         Case::Ext(_) => Box::new(crate::detect::external::load(case)?),
-        Case::MlodI | Case::MlodF | Case::MlodR | Case::MlodINoTrace | Case::MlodExt(_) => {
+        c if c.is_mlod() => {
             return Err(DetectError::BadParameter(format!(
                 "{} needs the stage-2 refiner: load it with mlod::refine::load_detector",
                 case.paper_name()

@@ -17,8 +17,10 @@
 //!   out over flat buffers) unless `slow_autograd` asks for candle's autograd graph; both compute
 //!   the same function and write the same checkpoints.
 //! - Determinism: the sample order of epoch e is a shuffle from ChaCha8(seed, stream e); step s
-//!   draws its augmentation from ChaCha8(seed, stream 2³² + s) and its sampled objects from
-//!   ChaCha8(seed, stream 2³³ + s); weights start from ChaCha8(seed).
+//!   draws its augmentation from ChaCha8(seed, stream 2³² + s), its sampled objects from
+//!   ChaCha8(seed, stream 2³³ + s), its transfer augmentation from stream 2³⁴ + s and, for the
+//!   cases trained under drift (issue 32), its perturbation from stream 2³⁵ + s; weights start
+//!   from ChaCha8(seed).
 //!   Nothing else is random, so a run resumed from a checkpoint continues exactly as if it had not
 //!   stopped (given the same thread count).
 //! - Checkpoints (weights, AdamW moments, step, elapsed time, the loss-curve rows) are written
@@ -51,6 +53,7 @@ use super::{Case, DetectError};
 pub use crate::dataset::train_validation_split as split;
 use crate::dataset::{Dataset, Frame};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
+use crate::uncertainty::{Perturbation, TRAINING_ALPHAS, TRAINING_ZERO_SHARE};
 
 /// The §V-A-5 augmentation of one sample.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -136,22 +139,24 @@ pub fn prepare_sample(
     aug: Option<&Augmentation>,
     objects: &[&GtObject],
 ) -> Result<PreparedSample, DetectError> {
-    prepare_sample_with(model, frame, aug, objects, None)
+    prepare_sample_with(model, frame, aug, objects, None, &FuseParams::default())
 }
 
 /// Boxes per frame that [`TransferAug`] may scale (the rest keep their size).
 const MAX_SCALED_BOXES: usize = 128;
 
-/// [`prepare_sample`] with the transfer augmentation before SECOND's.
+/// [`prepare_sample`] with the transfer augmentation before SECOND's, fused with `params` (a
+/// drift for the cases trained under it, [`drift_params`]).
 pub fn prepare_sample_with(
     model: &Stage1Model,
     frame: &Frame,
     aug: Option<&Augmentation>,
     objects: &[&GtObject],
     transfer: Option<&TransferAug>,
+    params: &FuseParams,
 ) -> Result<PreparedSample, DetectError> {
     let cfg = &model.config;
-    let mut cloud = fuse(frame, &FuseParams::default())?;
+    let mut cloud = fuse(frame, params)?;
     if !objects.is_empty() {
         cloud = paste(&cloud, objects);
     }
@@ -184,6 +189,22 @@ pub fn prepare_sample_with(
         targets,
         num_gt: gts.len(),
         num_dont_care: dont_care.len(),
+    })
+}
+
+/// The fuse parameters of one step of a case trained under drift: α = 0 with probability
+/// [`TRAINING_ZERO_SHARE`], else one of [`TRAINING_ALPHAS`], and a perturbation seed — the
+/// distribution the refiner's proposal database draws from.
+pub fn drift_params(rng: &mut ChaCha8Rng) -> Result<FuseParams, DetectError> {
+    let alpha = if rng.random::<f64>() < TRAINING_ZERO_SHARE {
+        0.0
+    } else {
+        TRAINING_ALPHAS[rng.random_range(0..TRAINING_ALPHAS.len())]
+    };
+    let seed = rng.random::<u32>() as u64;
+    Ok(FuseParams {
+        perturbation: Perturbation::new(alpha, seed).map_err(|e| DetectError::BadParameter(e.to_string()))?,
+        ..FuseParams::default()
     })
 }
 
@@ -585,7 +606,12 @@ pub fn train_stage1(
         let transfer = cfg
             .transfer_aug
             .then(|| TransferAug::draw(&mut stream_rng(cfg.seed, (1u64 << 34) + step), MAX_SCALED_BOXES));
-        let sample = prepare_sample_with(&model, &frame, aug.as_ref(), &objects, transfer.as_ref())?;
+        let params = if cfg.case.trains_under_drift() {
+            drift_params(&mut stream_rng(cfg.seed, (1u64 << 35) + step))?
+        } else {
+            FuseParams::default()
+        };
+        let sample = prepare_sample_with(&model, &frame, aug.as_ref(), &objects, transfer.as_ref(), &params)?;
         Ok((sample, t0.elapsed().as_secs_f64() * 1e3))
     };
     std::thread::scope(|scope| -> Result<(), DetectError> {

@@ -185,4 +185,52 @@ mod training {
             heavy.reg
         );
     }
+
+    #[test]
+    fn cases_trained_under_drift_see_perturbed_clouds_and_their_trace() {
+        use crate::uncertainty::{Perturbation, TRAINING_ALPHAS};
+        // The draw: deterministic per stream, α = 0 about 40 % of the time, else a training α.
+        let draw = |s: u64| drift_params(&mut stream_rng(7, (1u64 << 35) + s)).unwrap().perturbation;
+        assert_eq!(draw(5), draw(5));
+        let alphas: Vec<f64> = (0..2000).map(|s| draw(s).alpha).collect();
+        let zero = alphas.iter().filter(|a| **a == 0.0).count() as f64 / alphas.len() as f64;
+        assert!((zero - 0.4).abs() < 0.04, "share at α = 0: {zero}");
+        assert!(alphas.iter().all(|a| *a == 0.0 || TRAINING_ALPHAS.contains(a)));
+        assert!(TRAINING_ALPHAS.iter().all(|a| alphas.contains(a)));
+        assert!(Case::InputPa.trains_under_drift() && Case::InputTr.trains_under_drift());
+        assert!(!Case::Input.trains_under_drift() && !Case::Top.trains_under_drift());
+
+        // input-pa is Input Fusion's network (its weights can start from Input Fusion's);
+        // input-tr has nz more input channels, the voxels' mean tr(Ξ).
+        let input = ModelConfig::new(Case::Input);
+        let pa = ModelConfig::new(Case::InputPa);
+        assert_eq!((pa.grid, pa.branch_names()), (input.grid, input.branch_names()));
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::InputTr), 1).unwrap();
+        let g = model.config.grid;
+        assert!(g.trace && g.channels() == input.grid.channels() + g.nz);
+
+        let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
+        let prepare = |alpha: f64| {
+            let params = FuseParams {
+                perturbation: Perturbation::new(alpha, 3).unwrap(),
+                ..Default::default()
+            };
+            prepare_sample_with(&model, &frame, None, &[], None, &params).unwrap()
+        };
+        let trace_sum = |s: &PreparedSample| -> f32 {
+            let bev = s.bevs[0].as_ref().unwrap();
+            bev.data[input.grid.channels() * g.n * g.n..].iter().sum()
+        };
+        let (calm, drifted) = (prepare(0.0), prepare(0.1));
+        assert_eq!(calm.bevs[0].as_ref().unwrap().channels, g.channels());
+        assert!(
+            trace_sum(&drifted) > 0.0 && trace_sum(&drifted) > 2.0 * trace_sum(&calm),
+            "trace channels: {} at α = 0.1, {} at α = 0",
+            trace_sum(&drifted),
+            trace_sum(&calm)
+        );
+        let l = compute_loss(&model, &drifted).unwrap();
+        assert!(l.cls.is_finite() && l.reg.is_finite());
+    }
 }

@@ -217,6 +217,7 @@ mod tests {
                 y: &c.y,
                 z: &c.z,
                 intensity: &c.intensity,
+                trace: &c.trace,
             },
         );
         assert_eq!(bev.points_used, kept);

@@ -37,6 +37,14 @@ pub struct GridConfig {
     /// for data whose intensity is not real or differs between sensors).
     #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub intensity: bool,
+    /// Whether the voxel feature also holds the mean tr(Ξ) of the voxel's points (m², issue 32:
+    /// the `input-tr` case); absent, so false, in every other model.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub trace: bool,
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
 }
 
 fn yes() -> bool {
@@ -58,19 +66,21 @@ impl Default for GridConfig {
             nz: 8,
             xy_means: true,
             intensity: true,
+            trace: false,
         }
     }
 }
 
 impl GridConfig {
-    /// Channels of the BEV tensor: density and mean height per voxel, the column intensity, and
-    /// with `xy_means` the mean x and y per voxel.
+    /// Channels of the BEV tensor: density and mean height per voxel, the column intensity,
+    /// with `xy_means` the mean x and y per voxel, and with `trace` the mean tr(Ξ) per voxel.
     pub fn channels(&self) -> usize {
-        if self.xy_means {
+        let base = if self.xy_means {
             4 * self.nz + 1
         } else {
             2 * self.nz + 1
-        }
+        };
+        base + if self.trace { self.nz } else { 0 }
     }
 
     /// The upper x and y bound (m).
@@ -110,6 +120,9 @@ pub struct PointsRef<'a> {
     pub y: &'a [f32],
     pub z: &'a [f32],
     pub intensity: &'a [f32],
+    /// tr(Ξ) per point (m²), read only by grids with `trace`; shorter (e.g. empty): 0 for the
+    /// points it lacks.
+    pub trace: &'a [f32],
 }
 
 impl PointsRef<'_> {
@@ -138,6 +151,8 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
     let mut ysum = vec![0f32; if xy { nz * cols } else { 0 }];
     let mut col_count = vec![0u32; cols];
     let mut isum = vec![0f32; cols];
+    let tr = grid.trace;
+    let mut tsum = vec![0f32; if tr { nz * cols } else { 0 }];
     let mut used = 0;
     for i in 0..pts.len() {
         let z = pts.z[i];
@@ -158,6 +173,9 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
             xsum[v] += fx - fx.floor();
             ysum[v] += fy - fy.floor();
         }
+        if tr {
+            tsum[v] += pts.trace.get(i).copied().filter(|t| t.is_finite()).unwrap_or(0.0);
+        }
         col_count[c] += 1;
         if grid.intensity {
             isum[c] += pts.intensity[i];
@@ -168,7 +186,8 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
     let (density, rest) = data.split_at_mut(nz * cols);
     let (height, rest) = rest.split_at_mut(nz * cols);
     let (intensity, rest) = rest.split_at_mut(cols);
-    let (xmean, ymean) = rest.split_at_mut(if xy { nz * cols } else { 0 });
+    let (xmean, rest) = rest.split_at_mut(if xy { nz * cols } else { 0 });
+    let (ymean, tmean) = rest.split_at_mut(if xy { nz * cols } else { 0 });
     let mut occupied = 0;
     for v in 0..nz * cols {
         let n = count[v];
@@ -179,6 +198,9 @@ pub fn voxelize(grid: &GridConfig, pts: PointsRef<'_>) -> Bev {
             if xy {
                 xmean[v] = xsum[v] / n as f32;
                 ymean[v] = ysum[v] / n as f32;
+            }
+            if tr {
+                tmean[v] = tsum[v] / n as f32;
             }
         }
     }
@@ -215,6 +237,7 @@ mod tests {
                 y: &y,
                 z: &z,
                 intensity: &i,
+                trace: &[],
             },
         );
         assert_eq!(bev.points_used, 3);
@@ -253,6 +276,7 @@ mod tests {
                 y: &p,
                 z: &[-2.9],
                 intensity: &[255.0],
+                trace: &[],
             },
         );
         assert_eq!(bev.channels, 2 * g.nz + 1);
@@ -262,5 +286,72 @@ mod tests {
         let old = r#"{"xy_min":-51.2,"cell":0.4,"n":256,"z_min":-3.0,"z_max":1.0,"nz":8}"#;
         let parsed: GridConfig = serde_json::from_str(old).unwrap();
         assert_eq!(parsed, g);
+    }
+
+    #[test]
+    fn trace_channels_hold_each_voxels_mean_trace() {
+        use rand::{Rng, SeedableRng};
+        let g = GridConfig {
+            n: 16,
+            cell: 0.5,
+            xy_min: -4.0,
+            nz: 4,
+            trace: true,
+            ..GridConfig::default()
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = 3000;
+        let mut gen = |lo: f32, hi: f32| (0..n).map(|_| rng.random_range(lo..hi)).collect::<Vec<f32>>();
+        let (x, y, z) = (gen(-4.5, 4.5), gen(-4.5, 4.5), gen(-3.2, 1.2));
+        let i = vec![100.0; n];
+        let mut t = gen(0.0, 0.3);
+        t[7] = f32::NAN; // a NaN trace counts as 0, the point still counts
+        let bev = voxelize(
+            &g,
+            PointsRef {
+                x: &x,
+                y: &y,
+                z: &z,
+                intensity: &i,
+                trace: &t,
+            },
+        );
+        assert_eq!(bev.channels, 5 * g.nz + 1);
+        // Brute force: for every voxel, the points in it and their mean trace.
+        let cols = g.n * g.n;
+        let dz = (g.z_max - g.z_min) / g.nz as f32;
+        let base = (4 * g.nz + 1) * cols;
+        let mut checked = 0;
+        for iz in 0..g.nz {
+            for c in 0..cols {
+                let inside: Vec<usize> = (0..n)
+                    .filter(|&k| {
+                        let fz = (z[k] - g.z_min) / dz;
+                        fz >= 0.0 && (fz as usize) == iz && fz < g.nz as f32 && g.column(x[k], y[k]) == Some(c)
+                    })
+                    .collect();
+                let want = if inside.is_empty() {
+                    0.0
+                } else {
+                    inside.iter().map(|&k| if t[k].is_nan() { 0.0 } else { t[k] }).sum::<f32>() / inside.len() as f32
+                };
+                let got = bev.data[base + iz * cols + c];
+                assert!((got - want).abs() < 1e-5, "voxel {iz}/{c}: {got} vs {want}");
+                checked += usize::from(!inside.is_empty());
+            }
+        }
+        assert!(checked > 200, "only {checked} voxels held points");
+        // The other channels are those of the same grid without the trace.
+        let plain = voxelize(
+            &GridConfig { trace: false, ..g },
+            PointsRef {
+                x: &x,
+                y: &y,
+                z: &z,
+                intensity: &i,
+                trace: &[],
+            },
+        );
+        assert_eq!(&bev.data[..base], &plain.data[..]);
     }
 }

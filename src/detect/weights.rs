@@ -230,6 +230,10 @@ pub struct RefineTuning {
     pub score: String,
     /// 3D-IoU NMS after refinement at this IoU; `None`: none.
     pub nms_iou: Option<f64>,
+    /// The union cases' NMS after refinement (`mlod-u`, issue 32); absent: the default
+    /// (`detect::union::UNION_NMS_IOU`), as in manifests written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub union_nms_iou: Option<f64>,
     /// The command that chose it.
     pub command: String,
     /// Per candidate: car moderate AP_3D@0.7 (%) on the validation scenes per case and their mean.

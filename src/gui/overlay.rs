@@ -265,7 +265,7 @@ pub fn show(
             out.response.on_hover_ui_at_pointer(|ui| {
                 ui.strong(format!(
                     "proposal ({}): {}",
-                    case.stage1().paper_name(),
+                    case.proposals_name(),
                     det.category
                 ));
                 ui.label(format!("score  {:.3}", det.score));

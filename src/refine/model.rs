@@ -15,6 +15,7 @@
 
 use crate::calib::{IcpConfig, OcPrior};
 use crate::detect::oc::OcDetector;
+use crate::detect::union::{UnionDetector, UNION_NMS_IOU};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -76,6 +77,9 @@ pub struct Decoding {
     pub score: ScoreRule,
     /// 3D-IoU NMS after refinement (`None`: none).
     pub nms_iou: Option<f64>,
+    /// The 3D-IoU NMS after refinement of the union cases (`mlod-u`, `mlod-u-tr`), which always
+    /// need one: both stage-1 views may propose the same car.
+    pub union_nms_iou: f64,
 }
 
 impl Default for Decoding {
@@ -83,24 +87,40 @@ impl Default for Decoding {
         Self {
             score: ScoreRule::Refined,
             nms_iou: None,
+            union_nms_iou: UNION_NMS_IOU,
         }
     }
 }
 
 impl Decoding {
+    /// The decoding `case` runs: a union case's NMS is `union_nms_iou`.
+    pub fn for_case(self, case: Case) -> Self {
+        Self {
+            nms_iou: if case.is_union() {
+                Some(self.union_nms_iou)
+            } else {
+                self.nms_iou
+            },
+            ..self
+        }
+    }
+
     /// The decoding a manifest records (the default when it records none).
     pub fn of(t: Option<&RefineTuning>) -> Result<Self, String> {
         let Some(t) = t else { return Ok(Self::default()) };
         let score = ScoreRule::parse(&t.score)
             .ok_or_else(|| format!("refine.score {:?} is not refined, stage1 or mean", t.score))?;
-        if let Some(v) = t.nms_iou {
-            if !(v > 0.0 && v <= 1.0) {
-                return Err(format!("refine.nms_iou {v} is not in (0, 1]"));
+        for (field, v) in [("nms_iou", t.nms_iou), ("union_nms_iou", t.union_nms_iou)] {
+            if let Some(v) = v {
+                if !(v > 0.0 && v <= 1.0) {
+                    return Err(format!("refine.{field} {v} is not in (0, 1]"));
+                }
             }
         }
         Ok(Self {
             score,
             nms_iou: t.nms_iou,
+            union_nms_iou: t.union_nms_iou.unwrap_or(UNION_NMS_IOU),
         })
     }
 }
@@ -491,7 +511,17 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
             case.paper_name()
         )));
     }
-    let stage1 = load_detector_with(dir, case.stage1(), voting)?;
-    let refiner = Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
+    let stage1 = if case.is_union() {
+        let parts = case
+            .proposal_cases()
+            .into_iter()
+            .map(|c| load_detector_with(dir, c, voting))
+            .collect::<Result<Vec<_>, _>>()?;
+        Box::new(UnionDetector::new(case, parts)?)
+    } else {
+        load_detector_with(dir, case.stage1(), voting)?
+    };
+    let mut refiner = Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
+    refiner.decoding = refiner.decoding.for_case(case);
     Ok(Mlod::new(case, stage1, Arc::new(refiner)))
 }

@@ -28,7 +28,7 @@ use crate::uncertainty::Perturbation;
 pub const SHARD: usize = 32;
 
 /// The non-zero perturbation levels a draw picks from.
-pub const ALPHAS: [f64; 5] = [0.02, 0.04, 0.06, 0.08, 0.1];
+pub const ALPHAS: [f64; 5] = crate::uncertainty::TRAINING_ALPHAS;
 
 /// Stage 1's boxes of one sample under one perturbation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

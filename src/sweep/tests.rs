@@ -18,6 +18,7 @@ fn config() -> SweepConfig {
             Case::MlodI,
             Case::InputOc,
             Case::InputDrop,
+            Case::MlodU,
         ],
         alphas: vec![0.1],
         trials: 2,
@@ -197,51 +198,36 @@ fn another_configuration_in_the_same_folder_is_refused() {
 #[test]
 fn a_cell_is_what_eval_gives_for_that_case_alpha_and_seed() {
     let rows = collect(reference(), &config()).unwrap();
-    let cell = rows
-        .iter()
-        .find(|r| r.case == Case::MlodI && r.trial == 1)
-        .unwrap();
-    // `mlod eval --case mlod-i --alpha 0.1 --seed 4` on the same samples.
-    let det = crate::refine::load_detector(&default_models_dir(), Case::MlodI, Voting::Manifest).unwrap();
     let params = FuseParams {
         perturbation: Perturbation::new(0.1, 4).unwrap(),
         ..Default::default()
     };
-    let dets: HashMap<String, Vec<Detection>> = config()
-        .samples
-        .iter()
-        .map(|t| {
-            (
-                t.clone(),
-                det.detect(&dataset().frame(t).unwrap(), &params).unwrap(),
-            )
-        })
-        .collect();
     let opts = EvalOptions {
         only: Some(config().samples),
         ..Default::default()
     };
-    let report = evaluate_detections(dataset(), &dets, &opts).unwrap();
-    assert_eq!(cell.moderate, crate::eval::kitti::car_moderate_07(&report.kitti));
-    // input-drop is `mlod eval --case input-drop --drop-trace 0.1`.
-    let drop =
-        crate::refine::load_detector(&default_models_dir(), Case::InputDrop, Voting::Manifest).unwrap();
-    let dets: HashMap<String, Vec<Detection>> = config()
-        .samples
-        .iter()
-        .map(|t| {
-            (
-                t.clone(),
-                drop.detect(&dataset().frame(t).unwrap(), &params).unwrap(),
-            )
-        })
-        .collect();
-    let report = evaluate_detections(dataset(), &dets, &opts).unwrap();
-    let cell = rows
-        .iter()
-        .find(|r| r.case == Case::InputDrop && r.trial == 1)
-        .unwrap();
-    assert_eq!(cell.moderate, crate::eval::kitti::car_moderate_07(&report.kitti));
+    // `mlod eval --case CASE --alpha 0.1 --seed 4` on the same samples (input-drop with
+    // `--drop-trace 0.1`), against the sweep's trial-1 cell.
+    for case in [Case::MlodI, Case::InputDrop, Case::MlodU] {
+        let det = crate::refine::load_detector(&default_models_dir(), case, Voting::Manifest).unwrap();
+        let dets: HashMap<String, Vec<Detection>> = config()
+            .samples
+            .iter()
+            .map(|t| {
+                (
+                    t.clone(),
+                    det.detect(&dataset().frame(t).unwrap(), &params).unwrap(),
+                )
+            })
+            .collect();
+        let report = evaluate_detections(dataset(), &dets, &opts).unwrap();
+        let cell = rows.iter().find(|r| r.case == case && r.trial == 1).unwrap();
+        assert_eq!(
+            cell.moderate,
+            crate::eval::kitti::car_moderate_07(&report.kitti),
+            "{case}"
+        );
+    }
     // LiDAR-Top ran once per α.
     assert_eq!(rows.iter().filter(|r| r.case == Case::Top).count(), 1);
 }

@@ -15,6 +15,13 @@ pub use propagate::{covariance, trace_cloud, Linearization, TraceKernel};
 /// The paper's threshold for an "uncertain" point: tr(Ξ) > 0.05 m² (§V-C footnote).
 pub const UNCERTAIN_TRACE: f32 = 0.05;
 
+/// The non-zero α a training draw picks from (the refiner's proposal database, and stage 1
+/// trained under drift).
+pub const TRAINING_ALPHAS: [f64; 5] = [0.02, 0.04, 0.06, 0.08, 0.1];
+
+/// The share of training draws at α = 0 (α = 0 to α > 0 about 1 : 1.5).
+pub const TRAINING_ZERO_SHARE: f64 = 0.4;
+
 /// Errors of the uncertainty core; each names the value at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum UncertaintyError {

@@ -1,6 +1,7 @@
-//! The Detection panel: pick a case (the six stage-1 cases and MLOD-I/F/R), run it on the sample on
-//! screen, switch its layers on and off and read its boxes matched against the ground truth (for
-//! an MLOD case the refined boxes, with the proposals' counts beside them).
+//! The Detection panel: pick a case (the paper's, their (OC) variants and ablations, and the cases
+//! beyond the paper), run it on the sample on screen, switch its layers on and off and read its
+//! boxes matched against the ground truth (for an MLOD case the refined boxes, with the
+//! proposals' counts beside them).
 
 use eframe::egui;
 use egui::{Color32, RichText};
@@ -23,7 +24,12 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             .selected_text(d.case.paper_name())
             .show_ui(ui, |ui| {
                 for c in Case::WITH_OC.into_iter().chain(external) {
-                    ui.selectable_value(&mut d.case, c, c.paper_name());
+                    if c == Case::BEYOND[0] {
+                        ui.separator();
+                        ui.weak("beyond the paper");
+                    }
+                    ui.selectable_value(&mut d.case, c, c.paper_name())
+                        .on_hover_text(c.description());
                 }
             });
         let label = if p.loaded.detecting {
