@@ -210,8 +210,14 @@ fn the_union_case_refines_both_views_proposals() {
     };
     let m = mlod::refine::load_mlod(&models, Case::MlodU, Default::default()).unwrap();
     let run = m.run(&frame, &params).unwrap();
-    let top = load_detector(&models, Case::Top).unwrap().detect(&frame, &params).unwrap();
-    let input = load_detector(&models, Case::Input).unwrap().detect(&frame, &params).unwrap();
+    let top = load_detector(&models, Case::Top)
+        .unwrap()
+        .detect(&frame, &params)
+        .unwrap();
+    let input = load_detector(&models, Case::Input)
+        .unwrap()
+        .detect(&frame, &params)
+        .unwrap();
     assert!(!top.is_empty() && !input.is_empty());
     let union = mlod::detect::union::union_of(&[&top, &input]);
     assert_eq!(run.proposals, union);

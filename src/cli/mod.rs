@@ -120,7 +120,12 @@ Examples:
 pub fn detect_help() -> String {
     let mut s = String::from("Cases:\n");
     for c in mlod::detect::Case::WITH_OC {
-        s.push_str(&format!("  {:<15} {}: {}\n", c.as_str(), c.paper_name(), c.description()));
+        s.push_str(&format!(
+            "  {:<15} {}: {}\n",
+            c.as_str(),
+            c.paper_name(),
+            c.description()
+        ));
     }
     s.push_str("  ext:NAME        an external detector over mlod-detector/1 (docs/external.md)\n");
     s.push_str("  mlod-ext:NAME   the refiner on an external detector's proposals\n\n");

@@ -250,7 +250,10 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
     // The union case's NMS, with the chosen score rule (issue 32).
     let mut union_best: Option<(f64, f64)> = None;
     let manifest = Manifest::load(&models)?;
-    if [Case::Top, Case::Input].iter().all(|c| manifest.models.contains_key(c)) {
+    if [Case::Top, Case::Input]
+        .iter()
+        .all(|c| manifest.models.contains_key(c))
+    {
         let union = load_mlod(&models, Case::MlodU, Voting::Manifest)?;
         let mut per_iou: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
         for &alpha in &a.alphas {

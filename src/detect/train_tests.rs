@@ -190,7 +190,11 @@ mod training {
     fn cases_trained_under_drift_see_perturbed_clouds_and_their_trace() {
         use crate::uncertainty::{Perturbation, TRAINING_ALPHAS};
         // The draw: deterministic per stream, α = 0 about 40 % of the time, else a training α.
-        let draw = |s: u64| drift_params(&mut stream_rng(7, (1u64 << 35) + s)).unwrap().perturbation;
+        let draw = |s: u64| {
+            drift_params(&mut stream_rng(7, (1u64 << 35) + s))
+                .unwrap()
+                .perturbation
+        };
         assert_eq!(draw(5), draw(5));
         let alphas: Vec<f64> = (0..2000).map(|s| draw(s).alpha).collect();
         let zero = alphas.iter().filter(|a| **a == 0.0).count() as f64 / alphas.len() as f64;

@@ -327,13 +327,20 @@ mod tests {
                 let inside: Vec<usize> = (0..n)
                     .filter(|&k| {
                         let fz = (z[k] - g.z_min) / dz;
-                        fz >= 0.0 && (fz as usize) == iz && fz < g.nz as f32 && g.column(x[k], y[k]) == Some(c)
+                        fz >= 0.0
+                            && (fz as usize) == iz
+                            && fz < g.nz as f32
+                            && g.column(x[k], y[k]) == Some(c)
                     })
                     .collect();
                 let want = if inside.is_empty() {
                     0.0
                 } else {
-                    inside.iter().map(|&k| if t[k].is_nan() { 0.0 } else { t[k] }).sum::<f32>() / inside.len() as f32
+                    inside
+                        .iter()
+                        .map(|&k| if t[k].is_nan() { 0.0 } else { t[k] })
+                        .sum::<f32>()
+                        / inside.len() as f32
                 };
                 let got = bev.data[base + iz * cols + c];
                 assert!((got - want).abs() < 1e-5, "voxel {iz}/{c}: {got} vs {want}");

@@ -263,11 +263,7 @@ pub fn show(
             let outcome = d.outcomes[i];
             let case = d.case;
             out.response.on_hover_ui_at_pointer(|ui| {
-                ui.strong(format!(
-                    "proposal ({}): {}",
-                    case.proposals_name(),
-                    det.category
-                ));
+                ui.strong(format!("proposal ({}): {}", case.proposals_name(), det.category));
                 ui.label(format!("score  {:.3}", det.score));
                 ui.label(format!("size l×w×h  {l:.2} × {w:.2} × {h:.2} m"));
                 ui.label(format!("distance  {:.1} m", det.box3d.bev_range()));

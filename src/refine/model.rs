@@ -521,7 +521,8 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
     } else {
         load_detector_with(dir, case.stage1(), voting)?
     };
-    let mut refiner = Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
+    let mut refiner =
+        Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
     refiner.decoding = refiner.decoding.for_case(case);
     Ok(Mlod::new(case, stage1, Arc::new(refiner)))
 }
