@@ -70,8 +70,8 @@ fn reference() -> &'static PathBuf {
         let d = tmp("reference");
         assert_eq!(
             sweep(&d, 1, Shard::default(), None),
-            9,
-            "top once, four cases twice"
+            11,
+            "top once, five cases twice"
         );
         d
     })
@@ -104,7 +104,7 @@ fn killed_and_resumed_on_two_threads_equals_one_uninterrupted_run() {
     assert!(collect(&d, &config()).is_err(), "stopped early");
     assert_eq!(
         sweep(&d, 2, Shard::default(), None),
-        6,
+        8,
         "only the missing units run again"
     );
     let (a, b) = (files(reference()), files(&d));
