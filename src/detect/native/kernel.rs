@@ -26,10 +26,10 @@ const MR: usize = 12;
 /// Columns per tile: two zmm registers.
 const NR: usize = 32;
 /// Columns per rayon task.
-const NB: usize = 256;
+pub(super) const NB: usize = 256;
 
 /// Whether this CPU runs the AVX-512 kernel (checked once).
-fn avx512() -> bool {
+pub(super) fn avx512() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -71,44 +71,83 @@ pub(crate) fn gemm(
     if bm.cs != 1 {
         return gemm_abt(dst, d, a, am, b, bm, accumulate);
     }
-    // A packed: tile t, step kk, row r at (t·k + kk)·MR + r.
-    let mt = m.div_ceil(MR);
-    let mut pa = vec![0f32; mt * k * MR];
+    let pa = pack_a(m, k, |i, kk| a[i * am.rs + kk * am.cs]);
+    let brs = bm.rs;
+    tiles(dst, d.rs, m, n, k, &pa, accumulate, |n0, n1, pb| {
+        for kk in 0..k {
+            put_row(pb, k, kk, &b[kk * brs + n0..kk * brs + n1]);
+        }
+    });
+    Ok(())
+}
+
+/// `a` (`m × k`, element (i, kk) given by `at`) packed into panels of [`MR`] rows: panel t,
+/// step kk, row r at (t·k + kk)·MR + r; rows past `m` zero.
+pub(super) fn pack_a(m: usize, k: usize, at: impl Fn(usize, usize) -> f32) -> Vec<f32> {
+    let mut pa = vec![0f32; m.div_ceil(MR) * k * MR];
     for (t, panel) in pa.chunks_mut(k * MR).enumerate() {
         for (kk, col) in panel.chunks_mut(MR).enumerate() {
             for (r, v) in col.iter_mut().enumerate().take(m - t * MR) {
-                *v = a[(t * MR + r) * am.rs + kk * am.cs];
+                *v = at(t * MR + r, kk);
             }
         }
     }
+    pa
+}
+
+/// Row `kk` of a block's part of `b` (`row`, at most [`NB`] columns) into the block's strips:
+/// strip s, step kk at (s·k + kk)·NR.
+#[inline]
+pub(super) fn put_row(pb: &mut [f32], k: usize, kk: usize, row: &[f32]) {
+    for (s, part) in row.chunks(NR).enumerate() {
+        let o = (s * k + kk) * NR;
+        let to = &mut pb[o..o + part.len()];
+        match (<&mut [f32; NR]>::try_from(&mut *to), <&[f32; NR]>::try_from(part)) {
+            (Ok(to), Ok(part)) => *to = *part, // inlined, no memcpy call
+            _ => to.copy_from_slice(part),
+        }
+    }
+}
+
+/// The row-major-`b` product's body, with `b` given by `pack`: `dst (+)= a · b` where `pa` is
+/// `a` packed by [`pack_a`] (`m × k`), `dst` is `m × n` with row stride `crs`, and
+/// `pack(n0, n1, pb)` writes columns `n0..n1` of `b` (`k` rows, `n1 − n0 ≤ NB`) into `pb`'s
+/// `k × NR` strips with [`put_row`] (`pb` starts zeroed). Columns in blocks of [`NB`], one rayon
+/// task each; callers have checked that AVX-512 is present and that `dst` holds the product.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn tiles<F>(
+    dst: &mut [f32],
+    crs: usize,
+    m: usize,
+    n: usize,
+    k: usize,
+    pa: &[f32],
+    accumulate: bool,
+    pack: F,
+) where
+    F: Fn(usize, usize, &mut [f32]) + Sync,
+{
+    debug_assert!(avx512() && pa.len() >= m.div_ceil(MR) * k * MR);
+    debug_assert!(m == 0 || n == 0 || (m - 1) * crs + n <= dst.len());
+    let mt = m.div_ceil(MR);
     let out = Out(dst.as_mut_ptr());
-    let crs = d.rs;
     (0..n.div_ceil(NB)).into_par_iter().for_each(|blk| {
         let out = &out;
         let (n0, n1) = (blk * NB, ((blk + 1) * NB).min(n));
-        // The block's columns of b, strip by strip: strip s, step kk at (s·k + kk)·NR. Each
-        // row's part is read in one sequential run (a copy per 32-column strip read k rows
-        // 64 KiB apart per strip and waited on memory: 15 % of a step).
+        // The block's columns of b, strip by strip. Each row's part is written in one
+        // sequential run (a copy per 32-column strip read k rows 64 KiB apart per strip and
+        // waited on memory: 15 % of a step).
         let strips = (n1 - n0).div_ceil(NR);
         let mut pb = vec![0f32; strips * k * NR];
-        for kk in 0..k {
-            let row = &b[kk * bm.rs + n0..kk * bm.rs + n1];
-            for (s, part) in row.chunks(NR).enumerate() {
-                let o = (s * k + kk) * NR;
-                let to = &mut pb[o..o + part.len()];
-                match (<&mut [f32; NR]>::try_from(&mut *to), <&[f32; NR]>::try_from(part)) {
-                    (Ok(to), Ok(part)) => *to = *part, // inlined, no memcpy call
-                    _ => to.copy_from_slice(part),
-                }
-            }
-        }
+        pack(n0, n1, &mut pb);
         for s in 0..strips {
             let j = n0 + s * NR;
             let w = (n1 - j).min(NR);
             for t in 0..mt {
                 let rows = (m - t * MR).min(MR);
-                // SAFETY: AVX-512 was detected; the tile writes rows t·MR.. t·MR+rows < m and
-                // columns j..j+w ≤ n of dst (inside it by `fits`), columns no other task writes.
+                // SAFETY: AVX-512 was detected (the callers' check); the tile writes rows
+                // t·MR.. t·MR+rows < m and columns j..j+w ≤ n of dst (inside it, the callers'
+                // check), columns no other task writes; pa and pb hold the tile's k steps.
                 #[cfg(target_arch = "x86_64")]
                 unsafe {
                     tile(
@@ -125,7 +164,6 @@ pub(crate) fn gemm(
             }
         }
     });
-    Ok(())
 }
 
 /// Rows of `a` and of `bᵀ` per tile of [`gemm_abt`] (4 × 6 zmm accumulators).
