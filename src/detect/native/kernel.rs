@@ -10,7 +10,9 @@
 //!   per call into panels of [`MR`] rows (zero-padded); the columns are split into blocks of
 //!   [`NB`], one rayon task each, whose part of `b` is copied row by row into contiguous
 //!   `k × NR` strips that the `MR × NR` tiles (24 zmm accumulators) read from L1/L2; each output
-//!   is one fused multiply-add chain over `k` in order;
+//!   is one fused multiply-add chain over `k` in order. The body is [`tiles`], which takes the
+//!   block packing as a closure: the stride-1 input gradients ([`super::dgrad`]) fill the strips
+//!   straight from `dY` instead of a materialised `b`;
 //! - `b` given transposed, rows contiguous along a long `k` (a weight gradient `dY · colᵀ`):
 //!   dot products in 16 lanes ([`gemm_abt`]).
 //!
