@@ -10,7 +10,9 @@
 //!   per call into panels of [`MR`] rows (zero-padded); the columns are split into blocks of
 //!   [`NB`], one rayon task each, whose part of `b` is copied row by row into contiguous
 //!   `k × NR` strips that the `MR × NR` tiles (24 zmm accumulators) read from L1/L2; each output
-//!   is one fused multiply-add chain over `k` in order;
+//!   is one fused multiply-add chain over `k` in order. The body is [`tiles`], which takes the
+//!   block packing as a closure: the stride-1 input gradients ([`super::dgrad`]) fill the strips
+//!   straight from `dY` instead of a materialised `b`;
 //! - `b` given transposed, rows contiguous along a long `k` (a weight gradient `dY · colᵀ`):
 //!   dot products in 16 lanes ([`gemm_abt`]).
 //!
@@ -24,12 +26,17 @@ use crate::detect::fastconv::{gemm_into, Mat};
 /// Rows of `a` per tile (12 × 2 zmm accumulators).
 const MR: usize = 12;
 /// Columns per tile: two zmm registers.
-const NR: usize = 32;
+pub(super) const NR: usize = 32;
 /// Columns per rayon task.
-const NB: usize = 256;
+pub(super) const NB: usize = 256;
+
+thread_local! {
+    /// A thread's buffer of `b`'s strips for [`tiles`], reused by every block it runs.
+    static STRIPS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
 
 /// Whether this CPU runs the AVX-512 kernel (checked once).
-fn avx512() -> bool {
+pub(super) fn avx512() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -71,61 +78,144 @@ pub(crate) fn gemm(
     if bm.cs != 1 {
         return gemm_abt(dst, d, a, am, b, bm, accumulate);
     }
-    // A packed: tile t, step kk, row r at (t·k + kk)·MR + r.
-    let mt = m.div_ceil(MR);
-    let mut pa = vec![0f32; mt * k * MR];
-    for (t, panel) in pa.chunks_mut(k * MR).enumerate() {
-        for (kk, col) in panel.chunks_mut(MR).enumerate() {
-            for (r, v) in col.iter_mut().enumerate().take(m - t * MR) {
-                *v = a[(t * MR + r) * am.rs + kk * am.cs];
-            }
-        }
-    }
-    let out = Out(dst.as_mut_ptr());
-    let crs = d.rs;
-    (0..n.div_ceil(NB)).into_par_iter().for_each(|blk| {
-        let out = &out;
-        let (n0, n1) = (blk * NB, ((blk + 1) * NB).min(n));
-        // The block's columns of b, strip by strip: strip s, step kk at (s·k + kk)·NR. Each
-        // row's part is read in one sequential run (a copy per 32-column strip read k rows
-        // 64 KiB apart per strip and waited on memory: 15 % of a step).
-        let strips = (n1 - n0).div_ceil(NR);
-        let mut pb = vec![0f32; strips * k * NR];
+    let pa = pack_a(m, k, |i, kk| a[i * am.rs + kk * am.cs]);
+    let brs = bm.rs;
+    tiles(dst, d.rs, m, n, k, &pa, accumulate, |n0, n1, pb| {
         for kk in 0..k {
-            let row = &b[kk * bm.rs + n0..kk * bm.rs + n1];
-            for (s, part) in row.chunks(NR).enumerate() {
-                let o = (s * k + kk) * NR;
-                let to = &mut pb[o..o + part.len()];
-                match (<&mut [f32; NR]>::try_from(&mut *to), <&[f32; NR]>::try_from(part)) {
-                    (Ok(to), Ok(part)) => *to = *part, // inlined, no memcpy call
-                    _ => to.copy_from_slice(part),
-                }
-            }
-        }
-        for s in 0..strips {
-            let j = n0 + s * NR;
-            let w = (n1 - j).min(NR);
-            for t in 0..mt {
-                let rows = (m - t * MR).min(MR);
-                // SAFETY: AVX-512 was detected; the tile writes rows t·MR.. t·MR+rows < m and
-                // columns j..j+w ≤ n of dst (inside it by `fits`), columns no other task writes.
-                #[cfg(target_arch = "x86_64")]
-                unsafe {
-                    tile(
-                        k,
-                        pa.as_ptr().add(t * k * MR),
-                        pb.as_ptr().add(s * k * NR),
-                        out.0.add(t * MR * crs + j),
-                        crs,
-                        rows,
-                        w,
-                        accumulate,
-                    )
-                };
-            }
+            put_row(pb, k, kk, &b[kk * brs + n0..kk * brs + n1]);
         }
     });
     Ok(())
+}
+
+/// `a` (`m × k`, element (i, kk) given by `at`) packed into panels of [`MR`] rows: panel t,
+/// step kk, row r at (t·k + kk)·MR + r; rows past `m` zero.
+pub(super) fn pack_a(m: usize, k: usize, at: impl Fn(usize, usize) -> f32) -> Vec<f32> {
+    let mut pa = vec![0f32; m.div_ceil(MR) * k * MR];
+    for (t, panel) in pa.chunks_mut(k * MR).enumerate() {
+        for (kk, col) in panel.chunks_mut(MR).enumerate() {
+            for (r, v) in col.iter_mut().enumerate().take(m - t * MR) {
+                *v = at(t * MR + r, kk);
+            }
+        }
+    }
+    pa
+}
+
+/// Row `kk` of a block's part of `b` (`row`, at most [`NB`] columns) into the block's strips:
+/// strip s, step kk at (s·k + kk)·NR. Only inside [`tiles`] (AVX-512 present).
+fn put_row(pb: &mut [f32], k: usize, kk: usize, row: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: `tiles`, whose packing calls this, runs only where AVX-512 was detected.
+    unsafe {
+        put_row_avx512(pb, k, kk, row)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    for (s, part) in row.chunks(NR).enumerate() {
+        let o = (s * k + kk) * NR;
+        pb[o..o + part.len()].copy_from_slice(part);
+    }
+}
+
+/// [`put_row`] in zmm loads and stores: a plain copy (`*to = *part` or `copy_from_slice`) became
+/// one `memcpy` call per 128-byte strip row (the two branches merged), 10 % of a step.
+///
+/// # Safety
+/// AVX-512F available.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn put_row_avx512(pb: &mut [f32], k: usize, kk: usize, row: &[f32]) {
+    use std::arch::x86_64::*;
+    for (s, part) in row.chunks(NR).enumerate() {
+        let o = (s * k + kk) * NR;
+        let to = &mut pb[o..o + part.len()];
+        let mut off = 0;
+        while off < part.len() {
+            let n = (part.len() - off).min(16);
+            let mask = ((1u32 << n) - 1) as u16;
+            // SAFETY: n lanes from `off`, inside `part` and `to` (the same length).
+            unsafe {
+                let v = _mm512_maskz_loadu_ps(mask, part.as_ptr().add(off));
+                _mm512_mask_storeu_ps(to.as_mut_ptr().add(off), mask, v);
+            }
+            off += 16;
+        }
+    }
+}
+
+/// The row-major-`b` product's body, with `b` given by `pack`: `dst (+)= a · b` where `pa` is
+/// `a` packed by [`pack_a`] (`m × k`), `dst` is `m × n` with row stride `crs`, and
+/// `pack(n0, n1, pb)` writes columns `n0..n1` of `b` (`k` rows, `n1 − n0 ≤ NB`) into `pb`'s
+/// `k × NR` strips, every row of those columns (`pb` holds stale values: a thread's buffer is
+/// reused). Columns in blocks of [`NB`], one rayon
+/// task each; callers have checked that AVX-512 is present and that `dst` holds the product.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn tiles<F>(
+    dst: &mut [f32],
+    crs: usize,
+    m: usize,
+    n: usize,
+    k: usize,
+    pa: &[f32],
+    accumulate: bool,
+    pack: F,
+) where
+    F: Fn(usize, usize, &mut [f32]) + Sync,
+{
+    debug_assert!(avx512() && pa.len() >= m.div_ceil(MR) * k * MR);
+    debug_assert!(m == 0 || n == 0 || (m - 1) * crs + n <= dst.len());
+    let mt = m.div_ceil(MR);
+    let out = Out(dst.as_mut_ptr());
+    (0..n.div_ceil(NB)).into_par_iter().for_each(|blk| {
+        let out = &out;
+        let (n0, n1) = (blk * NB, ((blk + 1) * NB).min(n));
+        // The block's columns of b, strip by strip. Each row's part is written in one
+        // sequential run (a copy per 32-column strip read k rows 64 KiB apart per strip and
+        // waited on memory: 15 % of a step). The strips live in a buffer per thread, reused
+        // (a fresh zeroed one per block cost a 221 KB memset per block).
+        let strips = (n1 - n0).div_ceil(NR);
+        let need = strips * k * NR;
+        let run = |buf: &mut Vec<f32>| {
+            if buf.len() < need {
+                buf.resize(need, 0.0);
+            }
+            let pb = &mut buf[..need];
+            if (n1 - n0) % NR != 0 {
+                // The last strip's columns past n1 are never stored, but keep them finite.
+                pb[(strips - 1) * k * NR..].fill(0.0);
+            }
+            pack(n0, n1, pb);
+            for s in 0..strips {
+                let j = n0 + s * NR;
+                let w = (n1 - j).min(NR);
+                for t in 0..mt {
+                    let rows = (m - t * MR).min(MR);
+                    // SAFETY: AVX-512 was detected (the callers' check); the tile writes rows
+                    // t·MR.. t·MR+rows < m and columns j..j+w ≤ n of dst (inside it, the callers'
+                    // check), columns no other task writes; pa and pb hold the tile's k steps.
+                    #[cfg(target_arch = "x86_64")]
+                    unsafe {
+                        tile(
+                            k,
+                            pa.as_ptr().add(t * k * MR),
+                            pb.as_ptr().add(s * k * NR),
+                            out.0.add(t * MR * crs + j),
+                            crs,
+                            rows,
+                            w,
+                            accumulate,
+                        )
+                    };
+                }
+            }
+        };
+        // `pack` and `tile` start no rayon work, so a thread never re-enters here while its
+        // buffer is borrowed; should it, it gets a buffer of its own.
+        STRIPS.with(|cell| match cell.try_borrow_mut() {
+            Ok(mut buf) => run(&mut buf),
+            Err(_) => run(&mut Vec::new()),
+        });
+    });
 }
 
 /// Rows of `a` and of `bᵀ` per tile of [`gemm_abt`] (4 × 6 zmm accumulators).

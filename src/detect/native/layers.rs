@@ -6,6 +6,7 @@
 use candle_core::Result;
 use rayon::prelude::*;
 
+use super::dgrad;
 use super::kernel::gemm as gemm_into;
 use crate::detect::fastconv::{deconv_permute, Geom, Mat};
 
@@ -184,7 +185,8 @@ pub(super) struct ConvBn {
     geom: Geom,
     cout: usize,
     weight: usize,
-    /// im2col of the input (`K × P`), then the input's column gradient; empty for 1×1 convs.
+    /// im2col of the input (`K × P`), then (strided convs, or without AVX-512) the input's column
+    /// gradient; empty for 1×1 convs.
     col: Vec<f32>,
     pub bn: BnRelu,
 }
@@ -265,7 +267,10 @@ impl ConvBn {
             return Ok(());
         };
         let w = &params[self.weight].value;
-        if direct {
+        if dgrad::applies(&self.geom) {
+            // Stride-1 3×3: straight from ∂L/∂y, no column gradient, no col2im.
+            dgrad::input_grad(&self.geom, co, w, &self.bn.dout, dx, accumulate)?;
+        } else if direct {
             gemm_into(
                 dx,
                 Mat::rm(kk, p),

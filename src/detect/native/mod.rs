@@ -15,6 +15,7 @@
 //! Work is parallel over rayon's threads (gemm's blocks, one channel per task elsewhere) and
 //! every reduction runs in a fixed order, so a step is deterministic for a given thread count.
 
+mod dgrad;
 pub(crate) mod kernel;
 pub(crate) mod layers;
 pub mod loss;
