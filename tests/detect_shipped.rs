@@ -222,7 +222,12 @@ fn the_union_case_refines_both_views_proposals() {
     let union = mlod::detect::union::union_of(&[&top, &input]);
     assert_eq!(run.proposals, union);
     assert!(!run.refined.is_empty() && run.refined.len() < union.len());
-    let iou = mlod::detect::union::UNION_NMS_IOU;
+    // The union's NMS: the manifest's choice (`mlod train tune-refiner`), else the default.
+    let iou = manifest
+        .refine
+        .as_ref()
+        .and_then(|r| r.union_nms_iou)
+        .unwrap_or(mlod::detect::union::UNION_NMS_IOU);
     for (i, a) in run.refined.iter().enumerate() {
         for b in &run.refined[i + 1..] {
             let o = mlod::geometry::iou_3d(&a.detection.box3d, &b.detection.box3d);

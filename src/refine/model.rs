@@ -526,3 +526,35 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
     refiner.decoding = refiner.decoding.for_case(case);
     Ok(Mlod::new(case, stage1, Arc::new(refiner)))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn union_cases_decode_with_their_own_nms() {
+        let mut t = RefineTuning {
+            score: "mean".into(),
+            nms_iou: None,
+            union_nms_iou: None,
+            command: String::new(),
+            validation: Default::default(),
+        };
+        let d = Decoding::of(Some(&t)).unwrap();
+        assert_eq!(d.for_case(Case::MlodI).nms_iou, None);
+        assert_eq!(d.for_case(Case::MlodU).nms_iou, Some(UNION_NMS_IOU));
+        assert_eq!(d.for_case(Case::MlodUTr).nms_iou, Some(UNION_NMS_IOU));
+        t.union_nms_iou = Some(0.3);
+        t.nms_iou = Some(0.1);
+        let d = Decoding::of(Some(&t)).unwrap();
+        assert_eq!(d.for_case(Case::MlodU).nms_iou, Some(0.3));
+        assert_eq!(d.for_case(Case::MlodF).nms_iou, Some(0.1));
+        t.union_nms_iou = Some(1.5);
+        let e = Decoding::of(Some(&t)).unwrap_err();
+        assert!(e.contains("union_nms_iou"), "{e}");
+        // A manifest written before the field existed reads as no choice.
+        let old = r#"{"score":"mean","nms_iou":null,"command":"","validation":{}}"#;
+        let parsed: RefineTuning = serde_json::from_str(old).unwrap();
+        assert_eq!(parsed.union_nms_iou, None);
+    }
+}
