@@ -2,10 +2,10 @@
 //! network, decoding and NMS — on a sample_data frame (target ≤ 150 ms on 2 cores), and one
 //! training step (data, forward, backward, AdamW) of Input Fusion; the network alone, candle's
 //! graph against the folded inference network; and stage 2 (issue 17): refining 50 proposals of
-//! the frame — index, gather, sample, network, decode — (target ≤ 30 ms) and a whole MLOD-I run
-//! (target ≤ 150 ms). Uses the shipped weights when `assets/models/manifest.json` lists them,
-//! else seeded random weights (same cost, but random weights give few boxes, so decoding/NMS is
-//! cheaper than with trained ones).
+//! the frame — index, gather, sample, network, decode — (target ≤ 30 ms), and whole MLOD-I and
+//! MLOD-U runs (issue 32's proposal union; target ≤ 150 ms). Uses the shipped weights when
+//! `assets/models/manifest.json` lists them, else seeded random weights (same cost, but random
+//! weights give few boxes, so decoding/NMS is cheaper than with trained ones).
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
 use mlod::detect::model::load_detector;
@@ -112,10 +112,14 @@ fn bench_refine(c: &mut Criterion) {
     g.bench_function("50_proposals", |b| {
         b.iter(|| black_box(refiner.refine(&cloud, &proposals).expect("refine")))
     });
-    if let Ok(mlod_i) = mlod::refine::load_mlod(&default_models_dir(), Case::MlodI, Default::default()) {
-        g.bench_function("mlod-i", |b| {
-            b.iter(|| black_box(mlod_i.run(&frame, &params).expect("run")))
-        });
+    // MLOD-I and the proposal union of issue 32 (two stage-1 networks, the refiner on both
+    // proposal lists, NMS after it): whole runs, fuse included.
+    for case in [Case::MlodI, Case::MlodU] {
+        if let Ok(m) = mlod::refine::load_mlod(&default_models_dir(), case, Default::default()) {
+            g.bench_function(case.as_str(), |b| {
+                b.iter(|| black_box(m.run(&frame, &params).expect("run")))
+            });
+        }
     }
     g.finish();
 }
