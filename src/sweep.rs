@@ -301,10 +301,11 @@ fn read_unit(dir: &Path, u: &Unit) -> Option<UnitResult> {
 /// The stage-1 networks a case runs (Input Fusion for `input-drop`; LiDAR-Top and a fusion case
 /// for a proposal union).
 fn base_cases(c: Case) -> Vec<Case> {
-    match c {
-        Case::InputDrop => vec![Case::Input],
-        c => c.without_oc().proposal_cases(),
-    }
+    c.without_oc()
+        .proposal_cases()
+        .into_iter()
+        .map(|b| if b == Case::InputDrop { Case::Input } else { b })
+        .collect()
 }
 
 /// The shipped detectors a sweep needs, loaded once.
@@ -360,23 +361,23 @@ fn detect_sample(
     };
     let mut proposals: HashMap<(Case, bool), Vec<Detection>> = HashMap::new();
     let mut out = HashMap::new();
-    if cases.contains(&Case::InputDrop) {
+    if cases.iter().any(|c| c.without_oc().stage1() == Case::InputDrop) {
         let t = cfg.drop_trace.unwrap_or(crate::detect::drop::DROP_TRACE);
         let d = det
             .stage1
             .get(&Case::Input)
             .ok_or_else(|| SweepError::BadParameter("no Input Fusion detector".into()))?;
         let kept = crate::detect::drop::drop_uncertain(&drifted, t);
-        out.insert(Case::InputDrop, d.detect_fused(&frame, &kept)?);
+        proposals.insert((Case::InputDrop, false), d.detect_fused(&frame, &kept)?);
     }
-    for &case in cases.iter().filter(|c| **c != Case::InputDrop) {
+    for &case in cases {
         let oc = case.is_oc();
         let cloud = if oc {
             corrected.as_ref().unwrap_or(&drifted)
         } else {
             &drifted
         };
-        for base in base_cases(case) {
+        for base in case.without_oc().proposal_cases() {
             if let std::collections::hash_map::Entry::Vacant(e) = proposals.entry((base, oc)) {
                 let d = det
                     .stage1
@@ -385,7 +386,9 @@ fn detect_sample(
                 e.insert(d.detect_fused(&frame, cloud)?);
             }
         }
-        let lists: Vec<&[Detection]> = base_cases(case)
+        let lists: Vec<&[Detection]> = case
+            .without_oc()
+            .proposal_cases()
             .iter()
             .filter_map(|b| proposals.get(&(*b, oc)).map(|v| v.as_slice()))
             .collect();

@@ -120,7 +120,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         oc_prior: args.oc_prior,
         samples: sweep::spread_samples(&all, args.samples),
         assumed_alpha: args.assumed_alpha,
-        drop_trace: if args.cases.contains(&Case::InputDrop) {
+        drop_trace: if args.cases.iter().any(|c| c.stage1() == Case::InputDrop) {
             Some(args.drop_trace.unwrap_or(mlod::detect::drop::DROP_TRACE))
         } else {
             None

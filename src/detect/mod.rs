@@ -110,6 +110,9 @@ pub enum Case {
     MlodU,
     /// The refiner on the union of LiDAR-Top's and [`Case::InputTr`]'s proposals, 3D NMS after.
     MlodUTr,
+    /// The refiner on [`Case::InputDrop`]'s proposals (Input Fusion without its uncertain points):
+    /// the refiner still sees every point, with its tr(Ξ).
+    MlodIDrop,
     /// `ext:NAME`: the detector NAME, served by another process over `mlod-detector/1`
     /// ([`external`]). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
     Ext(&'static str),
@@ -156,18 +159,19 @@ impl Case {
 
     /// The cases beyond the paper (issue 32): stage 1 trained under drift, tr(Ξ) in stage 1,
     /// and the proposal union, each with the refiner.
-    pub const BEYOND: [Case; 6] = [
+    pub const BEYOND: [Case; 7] = [
         Case::InputPa,
         Case::InputTr,
         Case::MlodIPa,
         Case::MlodITr,
         Case::MlodU,
         Case::MlodUTr,
+        Case::MlodIDrop,
     ];
 
     /// Every case: [`Case::EVERY`], [`Case::OC`], the ablations [`Case::InputDrop`] and
     /// [`Case::MlodINoTrace`], then [`Case::BEYOND`].
-    pub const WITH_OC: [Case; 23] = [
+    pub const WITH_OC: [Case; 24] = [
         Case::Top,
         Case::Left,
         Case::Right,
@@ -191,6 +195,7 @@ impl Case {
         Case::MlodITr,
         Case::MlodU,
         Case::MlodUTr,
+        Case::MlodIDrop,
     ];
 
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
@@ -206,6 +211,7 @@ impl Case {
             Case::MlodIPa => Case::InputPa,
             Case::MlodITr | Case::MlodUTr => Case::InputTr,
             Case::MlodU => Case::Input,
+            Case::MlodIDrop => Case::InputDrop,
             Case::MlodExt(_) => external::ext_case(self.external_name().unwrap_or_default()),
             c => c,
         }
@@ -259,6 +265,7 @@ impl Case {
             Case::Result => Some(Case::MlodR),
             Case::InputPa => Some(Case::MlodIPa),
             Case::InputTr => Some(Case::MlodITr),
+            Case::InputDrop => Some(Case::MlodIDrop),
             Case::InputOc => Some(Case::MlodIOc),
             Case::FeatureOc => Some(Case::MlodFOc),
             Case::ResultOc => Some(Case::MlodROc),
@@ -278,6 +285,7 @@ impl Case {
                     | Case::MlodITr
                     | Case::MlodU
                     | Case::MlodUTr
+                    | Case::MlodIDrop
             )
     }
 
@@ -345,6 +353,7 @@ impl Case {
             Case::MlodITr => "mlod-i-tr",
             Case::MlodU => "mlod-u",
             Case::MlodUTr => "mlod-u-tr",
+            Case::MlodIDrop => "mlod-i-drop",
             Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
@@ -375,6 +384,7 @@ impl Case {
             Case::MlodITr => "MLOD-I with tr(Ξ) in stage 1",
             Case::MlodU => "MLOD-U (Top ∪ Input proposals)",
             Case::MlodUTr => "MLOD-U with tr(Ξ) in stage 1",
+            Case::MlodIDrop => "MLOD-I on the certain points' proposals",
             Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
@@ -405,6 +415,7 @@ impl Case {
             Case::MlodITr => "the refiner on input-tr's proposals",
             Case::MlodU => "the refiner on LiDAR-Top's and Input Fusion's proposals together, NMS after",
             Case::MlodUTr => "the refiner on LiDAR-Top's and input-tr's proposals together, NMS after",
+            Case::MlodIDrop => "the refiner (on every point) on input-drop's proposals",
             Case::Ext(_) => "an external detector over mlod-detector/1",
             Case::MlodExt(_) => "the refiner on an external detector's proposals",
         }

@@ -500,11 +500,17 @@ pub fn load_detector_oc(
     if !case.is_mlod() {
         return load_detector_with(dir, case, voting);
     }
-    Ok(Box::new(load_mlod(dir, case, voting)?))
+    Ok(Box::new(load_mlod_with(dir, case, voting, drop_trace)?))
 }
 
 /// An MLOD case of a models folder (its stage-1 detector and the folder's refiner).
 pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectError> {
+    load_mlod_with(dir, case, voting, crate::detect::drop::DROP_TRACE)
+}
+
+/// [`load_mlod`] with the tr(Ξ) threshold of a stage 1 that drops uncertain points
+/// (`mlod-i-drop`).
+pub fn load_mlod_with(dir: &Path, case: Case, voting: Voting, drop_trace: f32) -> Result<Mlod, DetectError> {
     if !case.is_mlod() || case.is_oc() {
         return Err(DetectError::BadParameter(format!(
             "{} is not an MLOD case",
@@ -518,6 +524,9 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
             .map(|c| load_detector_with(dir, c, voting))
             .collect::<Result<Vec<_>, _>>()?;
         Box::new(UnionDetector::new(case, parts)?)
+    } else if case.stage1() == Case::InputDrop {
+        let inner = load_detector_with(dir, Case::Input, voting)?;
+        Box::new(crate::detect::drop::DropDetector::new(inner, drop_trace)?)
     } else {
         load_detector_with(dir, case.stage1(), voting)?
     };
