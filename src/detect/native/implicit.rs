@@ -143,6 +143,30 @@ impl<'a> Shifted<'a> {
     /// Rows `0..k`, columns `n0..n1` into [`tiles`]' `k × NR` strips `pb` (strip s, row r at
     /// `(s·k + r)·NR`).
     pub fn pack(&self, k: usize, n0: usize, n1: usize, pb: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX-512 was detected (this type's contract).
+        unsafe {
+            self.pack_avx512(k, n0, n1, pb)
+        };
+    }
+
+    /// Row `r`, columns `j0..j0 + dst.len()` into `dst`.
+    pub fn fill(&self, r: usize, j0: usize, dst: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX-512 was detected (this type's contract).
+        unsafe {
+            self.fill_avx512(r, j0, dst)
+        };
+    }
+
+    /// [`Self::pack`], compiled for AVX-512 so that [`shifted`] is inlined (a call per 32-column
+    /// strip row otherwise).
+    ///
+    /// # Safety
+    /// AVX-512F available.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pack_avx512(&self, k: usize, n0: usize, n1: usize, pb: &mut [f32]) {
         // The block's columns cut at strip and image-row ends, once: (offset in the strip's
         // row, strip, y, x, length).
         let wd = self.wd;
@@ -158,25 +182,26 @@ impl<'a> Shifted<'a> {
             let (plane, oy, ox) = self.row(r);
             for &(cc, s, y, x, len) in &segs {
                 let o = (s * k + r) * NR + cc;
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: AVX-512 was detected (this type's contract).
-                unsafe {
-                    shifted(&mut pb[o..o + len], self.src(plane, y, oy), x as isize + ox)
-                };
+                // SAFETY: AVX-512F available (this function's contract).
+                unsafe { shifted(&mut pb[o..o + len], self.src(plane, y, oy), x as isize + ox) };
             }
         }
     }
 
-    /// Row `r`, columns `j0..j0 + dst.len()` into `dst`.
-    pub fn fill(&self, r: usize, j0: usize, dst: &mut [f32]) {
+    /// [`Self::fill`], compiled for AVX-512 ([`shifted`] inlined).
+    ///
+    /// # Safety
+    /// AVX-512F available.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn fill_avx512(&self, r: usize, j0: usize, dst: &mut [f32]) {
         let (plane, oy, ox) = self.row(r);
         let (wd, end) = (self.wd, j0 + dst.len());
         let mut j = j0;
         while j < end {
             let y = j / wd;
             let jb = end.min((y + 1) * wd);
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: AVX-512 was detected (this type's contract).
+            // SAFETY: AVX-512F available (this function's contract).
             unsafe {
                 shifted(
                     &mut dst[j - j0..jb - j0],
@@ -196,27 +221,41 @@ impl<'a> Shifted<'a> {
 /// AVX-512F available.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
+#[inline]
 unsafe fn shifted(dst: &mut [f32], src: Option<&[f32]>, xs: isize) {
     use std::arch::x86_64::*;
-    let len = dst.len();
+    let (len, d) = (dst.len(), dst.as_mut_ptr());
     let mut off = 0;
+    let Some(row) = src else {
+        while off < len {
+            let n = (len - off).min(16);
+            // SAFETY: n lanes from dst[off], inside `dst`.
+            unsafe { _mm512_mask_storeu_ps(d.add(off), ((1u32 << n) - 1) as u16, _mm512_setzero_ps()) };
+            off += 16;
+        }
+        return;
+    };
+    let rl = row.len() as isize;
     while off < len {
         let n = (len - off).min(16);
         let x = xs + off as isize;
-        let v = match src {
-            Some(row) => {
-                // Lanes lo..hi read row[x + lane], inside the row; the others load nothing.
-                let lo = (-x).clamp(0, n as isize) as u32;
-                let hi = (row.len() as isize - x).clamp(lo as isize, n as isize) as u32;
-                let mask = (((1u32 << hi) - 1) & !((1u32 << lo) - 1)) as u16;
-                // SAFETY: only lanes in lo..hi are read, at row[x + lo..x + hi], inside `row`;
-                // masked-off lanes are not accessed (the address is only formed, with wrapping).
-                unsafe { _mm512_maskz_loadu_ps(mask, row.as_ptr().wrapping_offset(x)) }
-            }
-            None => _mm512_setzero_ps(),
-        };
-        // SAFETY: n lanes from dst[off], inside `dst`.
-        unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr().add(off), ((1u32 << n) - 1) as u16, v) };
+        if n == 16 && x >= 0 && x + 16 <= rl {
+            // Inside the row (most chunks): plain loads and stores.
+            // SAFETY: row[x..x + 16] and dst[off..off + 16] are inside their slices.
+            unsafe { _mm512_storeu_ps(d.add(off), _mm512_loadu_ps(row.as_ptr().offset(x))) };
+        } else {
+            // Lanes lo..hi read row[x + lane], inside the row; the others load nothing.
+            let lo = (-x).clamp(0, n as isize) as u32;
+            let hi = (rl - x).clamp(lo as isize, n as isize) as u32;
+            let mask = (((1u32 << hi) - 1) & !((1u32 << lo) - 1)) as u16;
+            // SAFETY: only lanes in lo..hi are read, at row[x + lo..x + hi], inside `row`
+            // (masked-off lanes are not accessed; the address is only formed, with wrapping);
+            // n lanes are stored from dst[off], inside `dst`.
+            unsafe {
+                let v = _mm512_maskz_loadu_ps(mask, row.as_ptr().wrapping_offset(x));
+                _mm512_mask_storeu_ps(d.add(off), ((1u32 << n) - 1) as u16, v)
+            };
+        }
         off += 16;
     }
 }

@@ -11,10 +11,11 @@
 //!   [`NB`], one rayon task each, whose part of `b` is copied row by row into contiguous
 //!   `k × NR` strips that the `MR × NR` tiles (24 zmm accumulators) read from L1/L2; each output
 //!   is one fused multiply-add chain over `k` in order. The body is [`tiles`], which takes the
-//!   block packing as a closure: the stride-1 input gradients ([`super::dgrad`]) fill the strips
-//!   straight from `dY` instead of a materialised `b`;
+//!   block packing as a closure: the stride-1 convolutions ([`super::implicit`], [`super::dgrad`])
+//!   fill the strips straight from `x` or `dY` instead of a materialised `b`;
 //! - `b` given transposed, rows contiguous along a long `k` (a weight gradient `dY · colᵀ`):
-//!   dot products in 16 lanes ([`gemm_abt`]).
+//!   dot products in 16 lanes ([`abt`]; its rows read from memory, [`gemm_abt`], or generated
+//!   per k-pass by the stride-1 convolutions' weight gradient).
 //!
 //! Neither splits a sum between threads, so the result does not depend on the thread count.
 
