@@ -4,21 +4,18 @@
 //!
 //! It runs on [`kernel::tiles`](super::kernel::tiles): `a` is the weights rearranged to
 //! `ci × (co, ky, kx)`, and each block's strips of `b` are copied straight from `dY`'s shifted
-//! rows (an implicit im2col of `dY`, zeros at the borders), so neither the `K × P` column gradient
+//! rows (an implicit im2col of `dY`, zeros at the borders: [`Shifted`], shared with the forward
+//! and weight gradient of [`super::implicit`]), so neither the `K × P` column gradient
 //! `Wᵀ · dY` (14 MB for a 24-channel 128 × 128 layer) nor col2im's pass over it exist. Each output
 //! is one fused multiply-add chain over `(co, ky, kx)` in order, in one task: the result does not
 //! depend on the thread count.
 
 use candle_core::{Error, Result};
 
-use super::kernel::{avx512, pack_a, tiles, NR};
+pub(super) use super::implicit::applies;
+use super::implicit::Shifted;
+use super::kernel::{pack_a, tiles};
 use crate::detect::fastconv::Geom;
-
-/// Whether [`input_grad`] computes this convolution's input gradient: stride 1, odd kernel,
-/// padding k/2 (the output is the input's size), on a CPU with AVX-512.
-pub(super) fn applies(g: &Geom) -> bool {
-    g.stride == 1 && g.k % 2 == 1 && g.pad == g.k / 2 && g.k > 1 && avx512()
-}
 
 /// `dx (+)= ∂L/∂x` of the convolution `g` with weights `w [cout, cin, k, k]` from `dy [cout, h, w]`
 /// (added to `dx` when `accumulate`). Only where [`applies`] holds.
@@ -30,14 +27,13 @@ pub(super) fn input_grad(
     dx: &mut [f32],
     accumulate: bool,
 ) -> Result<()> {
-    if !applies(g) || g.ho != g.h || g.wo != g.w {
+    if !applies(g) {
         return Err(Error::Msg(format!(
             "input_grad: a {}×{} conv with stride {}, pad {} is not a stride-1 same conv on AVX-512",
             g.k, g.k, g.stride, g.pad
         )));
     }
-    let (cin, h, wd, ks, pad) = (g.cin, g.h, g.w, g.k, g.pad);
-    let (p, kk2) = (h * wd, ks * ks);
+    let (cin, p, kk2) = (g.cin, g.h * g.w, g.k * g.k);
     let k = cout * kk2;
     if w.len() < cout * cin * kk2 || dy.len() < cout * p || dx.len() < cin * p {
         return Err(Error::Msg(
@@ -52,70 +48,18 @@ pub(super) fn input_grad(
     }
     // a[ci][(co·k + ky)·k + kx] = W[co][ci][ky][kx].
     let pa = pack_a(cin, k, |ci, r| w[((r / kk2) * cin + ci) * kk2 + r % kk2]);
+    let sdy = Shifted::of(g, dy, true);
     tiles(dx, p, cin, p, k, &pa, accumulate, |n0, n1, pb| {
-        for r in 0..k {
-            let (co, ky, kx) = (r / kk2, (r / ks) % ks, r % ks);
-            let plane = &dy[co * p..(co + 1) * p];
-            let mut j = n0;
-            while j < n1 {
-                // Output row y, up to the row's or the strip's end: b's entries
-                // dY[co][y+pad−ky][x+pad−kx], zero outside the image.
-                let (y, c) = (j / wd, j - n0);
-                let jb = n1.min((y + 1) * wd).min(n0 + (c / NR + 1) * NR);
-                let o = ((c / NR) * k + r) * NR + c % NR;
-                let src = (y + pad)
-                    .checked_sub(ky)
-                    .filter(|&yy| yy < h)
-                    .map(|yy| &plane[yy * wd..(yy + 1) * wd]);
-                let xs = (j - y * wd + pad) as isize - kx as isize;
-                // SAFETY: AVX-512 was detected (`applies`).
-                #[cfg(target_arch = "x86_64")]
-                unsafe {
-                    shifted(&mut pb[o..o + (jb - j)], src, xs)
-                };
-                j = jb;
-            }
-        }
+        sdy.pack(k, n0, n1, pb)
     });
     Ok(())
-}
-
-/// `dst[i] = src[xs + i]`, zero where `xs + i` is outside `src` (everywhere when `src` is
-/// `None`), in masked 16-lane loads: no copy call, no branch per border.
-///
-/// # Safety
-/// AVX-512F available.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn shifted(dst: &mut [f32], src: Option<&[f32]>, xs: isize) {
-    use std::arch::x86_64::*;
-    let len = dst.len();
-    let mut off = 0;
-    while off < len {
-        let n = (len - off).min(16);
-        let x = xs + off as isize;
-        let v = match src {
-            Some(row) => {
-                // Lanes lo..hi read row[x + lane], inside the row; the others load nothing.
-                let lo = (-x).clamp(0, n as isize) as u32;
-                let hi = (row.len() as isize - x).clamp(lo as isize, n as isize) as u32;
-                let mask = (((1u32 << hi) - 1) & !((1u32 << lo) - 1)) as u16;
-                // SAFETY: only lanes in lo..hi are read, at row[x + lo..x + hi], inside `row`;
-                // masked-off lanes are not accessed (the address is only formed, with wrapping).
-                unsafe { _mm512_maskz_loadu_ps(mask, row.as_ptr().wrapping_offset(x)) }
-            }
-            None => _mm512_setzero_ps(),
-        };
-        // SAFETY: n lanes from dst[off], inside `dst`.
-        unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr().add(off), ((1u32 << n) - 1) as u16, v) };
-        off += 16;
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::detect::fastconv::{gemm_into, Mat};
+    use crate::detect::native::kernel::avx512;
     use crate::detect::native::testutil::rel;
 
     fn data(n: usize, seed: usize) -> Vec<f32> {

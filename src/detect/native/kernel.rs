@@ -11,10 +11,11 @@
 //!   [`NB`], one rayon task each, whose part of `b` is copied row by row into contiguous
 //!   `k × NR` strips that the `MR × NR` tiles (24 zmm accumulators) read from L1/L2; each output
 //!   is one fused multiply-add chain over `k` in order. The body is [`tiles`], which takes the
-//!   block packing as a closure: the stride-1 input gradients ([`super::dgrad`]) fill the strips
-//!   straight from `dY` instead of a materialised `b`;
+//!   block packing as a closure: the stride-1 convolutions ([`super::implicit`], [`super::dgrad`])
+//!   fill the strips straight from `x` or `dY` instead of a materialised `b`;
 //! - `b` given transposed, rows contiguous along a long `k` (a weight gradient `dY · colᵀ`):
-//!   dot products in 16 lanes ([`gemm_abt`]).
+//!   dot products in 16 lanes ([`abt`]; its rows read from memory, [`gemm_abt`], or generated
+//!   per k-pass by the stride-1 convolutions' weight gradient).
 //!
 //! Neither splits a sum between threads, so the result does not depend on the thread count.
 
@@ -225,36 +226,86 @@ const DN: usize = 6;
 const KB: usize = 512;
 
 /// `dst (+)= a · b` where `a`'s and `bᵀ`'s rows are contiguous along `k` (a weight gradient
-/// `dY · colᵀ`): every output is a dot product of two rows, summed in 16 lanes in `k` order and
-/// the lanes added at the end. One rayon task per [`DN`] rows of `bᵀ`; `k` in passes of [`KB`]
-/// with the tile's accumulators kept in memory between passes (the rows' chunks stay in L1).
+/// `dY · colᵀ`): [`abt`] with `bᵀ` given.
 fn gemm_abt(dst: &mut [f32], d: Mat, a: &[f32], am: Mat, b: &[f32], bm: Mat, accumulate: bool) -> Result<()> {
-    let (m, n, k) = (d.rows, d.cols, am.cols);
-    let (ars, brs, crs) = (am.rs, bm.cs, d.rs);
+    abt(
+        dst,
+        d.rs,
+        d.rows,
+        d.cols,
+        am.cols,
+        a,
+        am.rs,
+        accumulate,
+        b,
+        bm.cs,
+        None::<fn(usize, usize, &mut [f32])>,
+    )
+}
+
+/// `dst (+)= a · b` (`m × n`, row stride `crs`) where `a`'s rows (stride `ars`) and `bᵀ`'s rows
+/// run along `k`: every output is a dot product of two rows, summed in 16 lanes in `k` order and
+/// the lanes added at the end. `bᵀ`'s rows are `b`'s (stride `brs`), or, with `fill`, generated:
+/// `fill(j, k0, row)` writes row j's values `k0..k0 + row.len()` (then `b` is not read). One
+/// rayon task per [`DN`] rows of `bᵀ`; `k` in passes of [`KB`] with the tile's accumulators kept
+/// in memory between passes (the rows' chunks stay in L1; generated ones go to a `DN × KB`
+/// buffer of the task's, right before the tiles read them). Callers have checked that AVX-512
+/// is present.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn abt<F>(
+    dst: &mut [f32],
+    crs: usize,
+    m: usize,
+    n: usize,
+    k: usize,
+    a: &[f32],
+    ars: usize,
+    accumulate: bool,
+    b: &[f32],
+    brs: usize,
+    fill: Option<F>,
+) -> Result<()>
+where
+    F: Fn(usize, usize, &mut [f32]) + Sync,
+{
+    if m == 0 || n == 0 || k == 0 {
+        return Err(Error::Msg("abt: an empty product".into()));
+    }
+    let short = |len: usize, rows: usize, rs: usize, cols: usize| (rows - 1) * rs + cols > len;
+    if short(dst.len(), m, crs, n)
+        || short(a.len(), m, ars, k)
+        || (fill.is_none() && short(b.len(), n, brs, k))
+    {
+        return Err(Error::Msg("abt: an operand is shorter than its shape".into()));
+    }
     let mt = m.div_ceil(DM);
     let out = Out(dst.as_mut_ptr());
     (0..n.div_ceil(DN)).into_par_iter().for_each(|jt| {
         let out = &out;
         // Rows past the end repeat the last one; their sums are not stored.
-        let brow: [usize; DN] = std::array::from_fn(|q| (jt * DN + q).min(n - 1) * brs);
+        let rows: [usize; DN] = std::array::from_fn(|q| (jt * DN + q).min(n - 1));
         let mut acc = vec![0f32; mt * DM * DN * 16];
+        let mut buf = vec![0f32; if fill.is_some() { DN * KB } else { 0 }];
         let mut k0 = 0;
         while k0 < k {
             let kl = (k - k0).min(KB);
+            let (bp, brow) = match &fill {
+                Some(f) => {
+                    for (q, &j) in rows.iter().enumerate() {
+                        f(j, k0, &mut buf[q * KB..q * KB + kl]);
+                    }
+                    (buf.as_ptr(), std::array::from_fn(|q| q * KB))
+                }
+                None => (b.as_ptr(), rows.map(|j| j * brs + k0)),
+            };
             for (it, acc) in acc.chunks_mut(DM * DN * 16).enumerate() {
                 let arow: [usize; DM] = std::array::from_fn(|q| (it * DM + q).min(m - 1) * ars + k0);
-                // SAFETY: AVX-512 was detected; every row offset + k0 + kl is inside its slice
-                // (`fits`), and `acc` holds DM·DN·16 values.
+                // SAFETY: AVX-512 was detected (the callers' check); every row offset + kl is
+                // inside its slice (`b` and `a` checked above, `buf` holds DN rows of KB ≥ kl),
+                // and `acc` holds DM·DN·16 values.
                 #[cfg(target_arch = "x86_64")]
                 unsafe {
-                    dot_tile(
-                        kl,
-                        a.as_ptr(),
-                        &arow,
-                        b.as_ptr(),
-                        &brow.map(|o| o + k0),
-                        acc.as_mut_ptr(),
-                    )
+                    dot_tile(kl, a.as_ptr(), &arow, bp, &brow, acc.as_mut_ptr())
                 };
             }
             k0 += kl;
@@ -266,7 +317,8 @@ fn gemm_abt(dst: &mut [f32], d: Mat, a: &[f32], am: Mat, b: &[f32], bm: Mat, acc
                     let j = jt * DN + q;
                     if i < m && j < n {
                         let v: f32 = acc[(p * DN + q) * 16..(p * DN + q + 1) * 16].iter().sum();
-                        // SAFETY: (i, j) is inside dst (`fits`); this task alone writes column j.
+                        // SAFETY: (i, j) is inside dst (checked above); this task alone writes
+                        // column j.
                         unsafe {
                             let c = out.0.add(i * crs + j);
                             *c = if accumulate { *c + v } else { v };

@@ -6,8 +6,8 @@
 use candle_core::Result;
 use rayon::prelude::*;
 
-use super::dgrad;
 use super::kernel::gemm as gemm_into;
+use super::{dgrad, implicit};
 use crate::detect::fastconv::{deconv_permute, Geom, Mat};
 
 /// candle_nn's BatchNorm defaults, which the candle graph trains with.
@@ -185,8 +185,13 @@ pub(super) struct ConvBn {
     geom: Geom,
     cout: usize,
     weight: usize,
-    /// im2col of the input (`K × P`), then (strided convs, or without AVX-512) the input's column
-    /// gradient; empty for 1×1 convs.
+    /// 1×1 stride 1: the input is the gemm's `b` itself.
+    direct: bool,
+    /// Stride-1 same conv on AVX-512 ([`implicit::applies`]): forward, weight and input gradient
+    /// read the input's (or ∂L/∂y's) shifted rows; no `col`.
+    implicit: bool,
+    /// im2col of the input (`K × P`), then the input's column gradient (strided convs, or
+    /// without AVX-512); empty for 1×1 and implicit convs.
     col: Vec<f32>,
     pub bn: BnRelu,
 }
@@ -194,11 +199,14 @@ pub(super) struct ConvBn {
 impl ConvBn {
     pub fn new(geom: Geom, cout: usize, weight: usize, bn: [usize; 4]) -> Self {
         let direct = geom.k == 1 && geom.stride == 1 && geom.pad == 0;
+        let implicit = implicit::applies(&geom);
         Self {
             geom,
             cout,
             weight,
-            col: if direct {
+            direct,
+            implicit,
+            col: if direct || implicit {
                 Vec::new()
             } else {
                 vec![0.0; geom.kk() * geom.p()]
@@ -216,21 +224,22 @@ impl ConvBn {
         self.cout
     }
 
-    fn direct(&self) -> bool {
-        self.col.is_empty()
-    }
-
     pub fn input_len(&self) -> usize {
         self.geom.cin * self.geom.h * self.geom.w
     }
 
     pub fn forward(&mut self, x: &[f32], params: &[Param], stats: &mut [Param]) -> Result<()> {
         let (kk, p, co) = (self.geom.kk(), self.geom.p(), self.cout);
-        if !self.direct() {
+        let w = &params[self.weight].value;
+        if self.implicit {
+            implicit::forward(&self.geom, co, w, x, &mut self.bn.y)?;
+            self.bn.forward(params, stats);
+            return Ok(());
+        }
+        if !self.direct {
             self.geom.im2col(x, &mut self.col);
         }
-        let col: &[f32] = if self.direct() { x } else { &self.col };
-        let w = &params[self.weight].value;
+        let col: &[f32] = if self.direct { x } else { &self.col };
         gemm_into(
             &mut self.bn.y,
             Mat::rm(co, p),
@@ -248,26 +257,30 @@ impl ConvBn {
     pub fn backward(&mut self, x: &[f32], params: &mut [Param], dx: InputGrad<'_>) -> Result<()> {
         self.bn.backward(params);
         let (kk, p, co) = (self.geom.kk(), self.geom.p(), self.cout);
-        let direct = self.direct();
+        let direct = self.direct;
         {
-            let col: &[f32] = if direct { x } else { &self.col };
             let pw = &mut params[self.weight];
-            gemm_into(
-                &mut pw.grad,
-                Mat::rm(co, kk),
-                &self.bn.dout,
-                Mat::rm(co, p),
-                col,
-                Mat::tr(kk, p),
-                false,
-            )?;
+            if self.implicit {
+                implicit::weight_grad(&self.geom, co, &self.bn.dout, x, &mut pw.grad)?;
+            } else {
+                let col: &[f32] = if direct { x } else { &self.col };
+                gemm_into(
+                    &mut pw.grad,
+                    Mat::rm(co, kk),
+                    &self.bn.dout,
+                    Mat::rm(co, p),
+                    col,
+                    Mat::tr(kk, p),
+                    false,
+                )?;
+            }
             pw.has_grad = true;
         }
         let Some((dx, accumulate)) = dx else {
             return Ok(());
         };
         let w = &params[self.weight].value;
-        if dgrad::applies(&self.geom) {
+        if self.implicit {
             // Stride-1 3×3: straight from ∂L/∂y, no column gradient, no col2im.
             dgrad::input_grad(&self.geom, co, w, &self.bn.dout, dx, accumulate)?;
         } else if direct {

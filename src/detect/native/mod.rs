@@ -16,6 +16,7 @@
 //! every reduction runs in a fixed order, so a step is deterministic for a given thread count.
 
 mod dgrad;
+mod implicit;
 pub(crate) mod kernel;
 pub(crate) mod layers;
 pub mod loss;
