@@ -211,18 +211,22 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
         Some(v) => format!("{}+nms{v}", d.score.as_str()),
         None => d.score.as_str().to_string(),
     };
+    // An MLOD case's runs over the validation samples at α (one draw, seed --seed).
+    let runs_at = |m: &mlod::refine::Mlod, alpha: f64| -> Result<Vec<(String, mlod::refine::MlodRun)>> {
+        let params = mlod::pipeline::FuseParams {
+            perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
+            ..Default::default()
+        };
+        tokens
+            .par_iter()
+            .map(|t| -> Result<_> { Ok((t.clone(), m.run(&dataset.frame(t)?, &params)?)) })
+            .collect()
+    };
     let mut validation: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
     for case in Case::MLOD {
         let mlod_det = load_mlod(&models, case, Voting::Manifest)?;
         for &alpha in &a.alphas {
-            let params = mlod::pipeline::FuseParams {
-                perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
-                ..Default::default()
-            };
-            let runs: Vec<(String, mlod::refine::MlodRun)> = tokens
-                .par_iter()
-                .map(|t| -> Result<_> { Ok((t.clone(), mlod_det.run(&dataset.frame(t)?, &params)?)) })
-                .collect::<Result<_>>()?;
+            let runs = runs_at(&mlod_det, alpha)?;
             for d in &candidates {
                 let dets: HashMap<String, Vec<mlod::detect::Detection>> =
                     runs.iter().map(|(t, r)| (t.clone(), redecode(r, *d))).collect();
@@ -257,14 +261,7 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
         let union = load_mlod(&models, Case::MlodU, Voting::Manifest)?;
         let mut per_iou: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
         for &alpha in &a.alphas {
-            let params = mlod::pipeline::FuseParams {
-                perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
-                ..Default::default()
-            };
-            let runs: Vec<(String, mlod::refine::MlodRun)> = tokens
-                .par_iter()
-                .map(|t| -> Result<_> { Ok((t.clone(), union.run(&dataset.frame(t)?, &params)?)) })
-                .collect::<Result<_>>()?;
+            let runs = runs_at(&union, alpha)?;
             for &v in &a.union_nms {
                 if !(v > 0.0 && v <= 1.0) {
                     anyhow::bail!("--union-nms {v} is not an IoU in (0, 1]");

@@ -60,13 +60,7 @@ mod tests {
     use super::*;
     use crate::detect::fastconv::{gemm_into, Mat};
     use crate::detect::native::kernel::avx512;
-    use crate::detect::native::testutil::rel;
-
-    fn data(n: usize, seed: usize) -> Vec<f32> {
-        (0..n)
-            .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0 - 0.5)
-            .collect()
-    }
+    use crate::detect::native::testutil::{data, rel};
 
     #[test]
     fn equals_the_column_gradient_and_col2im() {

@@ -264,13 +264,7 @@ unsafe fn shifted(dst: &mut [f32], src: Option<&[f32]>, xs: isize) {
 mod tests {
     use super::*;
     use crate::detect::fastconv::{gemm_into, Mat};
-    use crate::detect::native::testutil::rel;
-
-    fn data(n: usize, seed: usize) -> Vec<f32> {
-        (0..n)
-            .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0 - 0.5)
-            .collect()
-    }
+    use crate::detect::native::testutil::{data, rel};
 
     #[test]
     fn forward_and_weight_gradient_equal_im2col_and_gemm() {

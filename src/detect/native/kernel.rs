@@ -428,12 +428,7 @@ unsafe fn tile(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn data(n: usize, seed: usize) -> Vec<f32> {
-        (0..n)
-            .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0 - 0.5)
-            .collect()
-    }
+    use crate::detect::native::testutil::data;
 
     /// max |x − y| / max(1, max |y|).
     fn rel(x: &[f32], y: &[f32]) -> f32 {

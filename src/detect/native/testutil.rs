@@ -6,6 +6,13 @@ use std::collections::HashMap;
 use candle_core::{DType, Tensor};
 use candle_nn::VarMap;
 
+/// A deterministic pattern of `n` values in [−0.5, 0.5), different per `seed` (the kernels' tests).
+pub(crate) fn data(n: usize, seed: usize) -> Vec<f32> {
+    (0..n)
+        .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0 - 0.5)
+        .collect()
+}
+
 /// max |a − b|.
 pub(crate) fn diff(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
