@@ -226,14 +226,14 @@ impl Case {
         }
     }
 
-    /// The name of the stage 1 whose proposals this case shows (`LiDAR-Top ∪ Input Fusion` for
+    /// The name of the stage 1 whose proposals this case shows (`LiDAR-Top + Input Fusion` for
     /// a union case).
     pub fn proposals_name(self) -> String {
         self.proposal_cases()
             .iter()
             .map(|c| c.paper_name())
             .collect::<Vec<_>>()
-            .join(" ∪ ")
+            .join(" + ")
     }
 
     /// Whether this case refines the union of several stage-1 cases' proposals (and so needs
@@ -382,7 +382,7 @@ impl Case {
             Case::InputTr => "Input Fusion with tr(Ξ) voxels",
             Case::MlodIPa => "MLOD-I, stage 1 trained under drift",
             Case::MlodITr => "MLOD-I with tr(Ξ) in stage 1",
-            Case::MlodU => "MLOD-U (Top ∪ Input proposals)",
+            Case::MlodU => "MLOD-U (Top + Input proposals)",
             Case::MlodUTr => "MLOD-U with tr(Ξ) in stage 1",
             Case::MlodIDrop => "MLOD-I on the certain points' proposals",
             Case::Ext(s) | Case::MlodExt(s) => s,
