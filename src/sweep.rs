@@ -392,9 +392,10 @@ fn detect_sample(
             .iter()
             .filter_map(|b| proposals.get(&(*b, oc)).map(|v| v.as_slice()))
             .collect();
-        let props = match lists.as_slice() {
-            [one] => one.to_vec(),
-            many => crate::detect::union::union_of(many),
+        // One stage 1's proposals are borrowed from the cache; a union is built.
+        let props: std::borrow::Cow<'_, [Detection]> = match lists.as_slice() {
+            [one] => std::borrow::Cow::Borrowed(*one),
+            many => std::borrow::Cow::Owned(crate::detect::union::union_of(many)),
         };
         let dets = if case.is_mlod() {
             let r = det
@@ -407,7 +408,7 @@ fn detect_sample(
                 .map(|r| r.detection)
                 .collect()
         } else {
-            props
+            props.into_owned()
         };
         out.insert(case, dets);
     }

@@ -82,6 +82,18 @@ impl Mat {
     }
 }
 
+/// The checks of every `dst (+)= a · b` (this module's and the native trainers' kernel): the
+/// shapes agree and each operand holds its shape.
+pub(crate) fn check_operands(dst: usize, d: Mat, a: usize, am: Mat, b: usize, bm: Mat) -> Result<()> {
+    if am.rows != d.rows || bm.cols != d.cols || am.cols != bm.rows {
+        return Err(err("gemm shapes do not match"));
+    }
+    if !(d.fits(dst) && am.fits(a) && bm.fits(b)) {
+        return Err(err("a gemm operand is shorter than its shape"));
+    }
+    Ok(())
+}
+
 /// `dst (+)= a · b` with gemm over rayon's threads.
 pub(crate) fn gemm_into(
     dst: &mut [f32],
@@ -92,12 +104,7 @@ pub(crate) fn gemm_into(
     bm: Mat,
     accumulate: bool,
 ) -> Result<()> {
-    if am.rows != d.rows || bm.cols != d.cols || am.cols != bm.rows {
-        return Err(err("gemm shapes do not match"));
-    }
-    if !(d.fits(dst.len()) && am.fits(a.len()) && bm.fits(b.len())) {
-        return Err(err("a gemm operand is shorter than its shape"));
-    }
+    check_operands(dst.len(), d, a.len(), am, b.len(), bm)?;
     if d.rows == 0 || d.cols == 0 {
         return Ok(());
     }

@@ -22,7 +22,7 @@
 use candle_core::{Error, Result};
 use rayon::prelude::*;
 
-use crate::detect::fastconv::{gemm_into, Mat};
+use crate::detect::fastconv::{check_operands, gemm_into, Mat};
 
 /// Rows of `a` per tile (12 × 2 zmm accumulators).
 const MR: usize = 12;
@@ -66,12 +66,7 @@ pub(crate) fn gemm(
     if !(avx512() && d.cs == 1 && (rm || bt)) {
         return gemm_into(dst, d, a, am, b, bm, accumulate);
     }
-    if am.rows != d.rows || bm.cols != d.cols || am.cols != bm.rows {
-        return Err(Error::Msg("gemm: shapes do not match".into()));
-    }
-    if !(d.fits(dst.len()) && am.fits(a.len()) && bm.fits(b.len())) {
-        return Err(Error::Msg("gemm: an operand is shorter than its shape".into()));
-    }
+    check_operands(dst.len(), d, a.len(), am, b.len(), bm)?;
     let (m, n, k) = (d.rows, d.cols, am.cols);
     if m == 0 || n == 0 || k == 0 {
         return gemm_into(dst, d, a, am, b, bm, accumulate);
