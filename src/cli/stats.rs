@@ -176,7 +176,11 @@ fn print_summary(stats: &DatasetStats) {
     println!("  LiDARs                {}", s.lidars.join(", "));
     println!(
         "  LIDAR_TOP rings       {}",
-        s.rings.map_or("unknown".to_owned(), |r| r.to_string())
+        match (s.rings, s.rings_per_sweep) {
+            (None, _) => "unknown".to_owned(),
+            (Some(r), Some([lo, hi])) if lo < hi => format!("{r} ({lo}–{hi} per sweep)"),
+            (Some(r), _) => r.to_string(),
+        }
     );
     match s.intensity_constant {
         Some(v) => println!("  intensity             constant {v}"),
@@ -282,23 +286,6 @@ fn print_lidar(l: &LidarStats) {
     );
 }
 
-/// Whether the models folder's LiDAR-Top reads intensity (models trained with `--no-intensity`
-/// do not, and need no note about it); true when it cannot tell.
-fn models_use_intensity(models_dir: &Path) -> bool {
-    use mlod::detect::{weights, Case};
-    let config = || -> Option<mlod::detect::config::ModelConfig> {
-        let manifest = weights::Manifest::load(models_dir).ok()?;
-        let path = manifest
-            .entry(models_dir, Case::Top)
-            .ok()?
-            .path_in(models_dir)
-            .ok()?;
-        let file = weights::read_weights(&path, None).ok()?;
-        serde_json::from_str(file.metadata.get("mlod.config")?).ok()
-    };
-    config().is_none_or(|c| c.grid.intensity)
-}
-
 /// Prints on stderr, as `note: …`, what differs between `dataset` (summarised over
 /// [`NOTE_SAMPLES`] samples) and the training data's summary in `models_dir`'s manifest. Silent
 /// when the manifest has no summary or the dataset cannot be summarised (the command's own work
@@ -310,11 +297,7 @@ pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     let Ok(data) = mlod::dataset::summarize(dataset, NOTE_SAMPLES) else {
         return;
     };
-    let mut notes = mlod::dataset::out_of_depth_notes(&trained, &data);
-    let about_intensity = |n: &String| n.starts_with("intensity");
-    if notes.iter().any(about_intensity) && !models_use_intensity(models_dir) {
-        notes.retain(|n| !about_intensity(n));
-    }
+    let notes = mlod::detect::weights::training_notes(models_dir, &data);
     if notes.is_empty() {
         return;
     }

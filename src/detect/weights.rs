@@ -300,6 +300,33 @@ pub fn read_training_stats(dir: &Path) -> Result<Option<crate::dataset::StatsSum
     Ok(Manifest::load(dir)?.training_stats.map(|t| t.summary))
 }
 
+/// Whether the models in `dir` read intensity: LiDAR-Top's configuration says so (v4 models are
+/// trained without it); true when it cannot be read, as for every model made before the option.
+pub fn models_read_intensity(dir: &Path) -> bool {
+    let config = || -> Option<super::config::ModelConfig> {
+        let manifest = Manifest::load(dir).ok()?;
+        let path = manifest.entry(dir, super::Case::Top).ok()?.path_in(dir).ok()?;
+        let file = read_weights(&path, None).ok()?;
+        serde_json::from_str(file.metadata.get("mlod.config")?).ok()
+    };
+    config().is_none_or(|c| c.grid.intensity)
+}
+
+/// What differs between `data` and the training data of the models in `dir`, in words
+/// ([`crate::dataset::out_of_depth_notes`]), without the notes about intensity when the models do
+/// not read it. Empty when the manifest has no training statistics.
+pub fn training_notes(dir: &Path, data: &crate::dataset::StatsSummary) -> Vec<String> {
+    let Ok(Some(trained)) = read_training_stats(dir) else {
+        return Vec::new();
+    };
+    let mut notes = crate::dataset::out_of_depth_notes(&trained, data);
+    let about_intensity = |n: &String| n.starts_with("intensity");
+    if notes.iter().any(about_intensity) && !models_read_intensity(dir) {
+        notes.retain(|n| !about_intensity(n));
+    }
+    notes
+}
+
 /// The folder whose manifest lists a weights file: its parent (`.` for a bare file name).
 pub(crate) fn folder_of(path: &Path) -> Option<&Path> {
     path.parent().map(|d| {

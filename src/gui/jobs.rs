@@ -235,12 +235,9 @@ impl Jobs {
     /// (nothing when the manifest has no training statistics or the summary fails).
     pub fn depth_notes(&mut self, path: PathBuf, dataset: Arc<Dataset>, models: PathBuf) {
         self.spawn(move || {
-            let notes = match (
-                crate::detect::weights::read_training_stats(&models),
-                crate::dataset::summarize(&dataset, DEPTH_NOTE_SAMPLES),
-            ) {
-                (Ok(Some(trained)), Ok(data)) => crate::dataset::out_of_depth_notes(&trained, &data),
-                _ => Vec::new(),
+            let notes = match crate::dataset::summarize(&dataset, DEPTH_NOTE_SAMPLES) {
+                Ok(data) => crate::detect::weights::training_notes(&models, &data),
+                Err(_) => Vec::new(),
             };
             JobResult::DepthNotes { path, notes }
         });

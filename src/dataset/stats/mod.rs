@@ -184,6 +184,10 @@ pub struct LidarStats {
     pub points_per_sweep: Spread,
     /// Distinct ring values ≥ 0; null when the ring is unknown.
     pub rings: Option<u32>,
+    /// Fewest and most distinct rings in one sweep (they differ when the sweeps come from several
+    /// sensors); null when the ring is unknown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings_per_sweep: Option<[u32; 2]>,
     pub intensity: IntensityStats,
     /// Ground height below the sensor (m), median over sweeps; null if no sweep had ground points.
     pub ground_height_m: Option<f64>,
@@ -268,6 +272,7 @@ impl DatasetStats {
         StatsSummary {
             samples: self.samples,
             rings: top.and_then(|l| l.rings),
+            rings_per_sweep: top.and_then(|l| l.rings_per_sweep),
             intensity_median: top.map_or(0.0, |l| l.intensity.median),
             intensity_p05: top.map_or(0.0, |l| l.intensity.p05),
             intensity_p95: top.map_or(0.0, |l| l.intensity.p95),
@@ -291,6 +296,10 @@ pub struct StatsSummary {
     pub samples: usize,
     /// LIDAR_TOP's distinct rings; `None`: unknown.
     pub rings: Option<u32>,
+    /// Fewest and most distinct LIDAR_TOP rings in one sweep: a range when the data mixes sensors
+    /// (absent in summaries written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings_per_sweep: Option<[u32; 2]>,
     pub intensity_median: f64,
     pub intensity_p05: f64,
     pub intensity_p95: f64,
@@ -501,6 +510,8 @@ impl FineHist {
 struct LidarAcc {
     points: Vec<usize>,
     rings: Vec<bool>,
+    /// Distinct rings of each sweep whose rings are known.
+    sweep_rings: Vec<u32>,
     ring_known: bool,
     intensity: Histogram,
     intensity_fine: FineHist,
@@ -518,6 +529,7 @@ impl Default for LidarAcc {
         Self {
             points: Vec::new(),
             rings: Vec::new(),
+            sweep_rings: Vec::new(),
             ring_known: false,
             intensity: Histogram::uniform(0.0, 256.0 / INTENSITY_BINS as f64, INTENSITY_BINS),
             intensity_fine: FineHist::new(INTENSITY_FINE_MAX),
@@ -536,17 +548,26 @@ impl LidarAcc {
     fn add_scan(&mut self, scan: &LidarScan, opts: &StatsOptions) {
         let p = &scan.points;
         self.points.push(p.len());
+        let mut this_sweep: Vec<bool> = Vec::new();
         for &r in &p.ring {
             if (0.0..65536.0).contains(&r) {
                 let k = r.round() as usize;
-                if self.rings.len() <= k {
-                    self.rings.resize(k + 1, false);
+                if this_sweep.len() <= k {
+                    this_sweep.resize(k + 1, false);
                 }
-                if let Some(s) = self.rings.get_mut(k) {
+                if let Some(s) = this_sweep.get_mut(k) {
                     *s = true;
                 }
-                self.ring_known = true;
             }
+        }
+        if this_sweep.iter().any(|&s| s) {
+            self.ring_known = true;
+            self.sweep_rings
+                .push(this_sweep.iter().filter(|&&s| s).count() as u32);
+            if self.rings.len() < this_sweep.len() {
+                self.rings.resize(this_sweep.len(), false);
+            }
+            self.rings.iter_mut().zip(&this_sweep).for_each(|(a, b)| *a |= *b);
         }
         for &i in &p.intensity {
             let v = f64::from(i);
@@ -577,6 +598,7 @@ impl LidarAcc {
             self.rings.resize(o.rings.len(), false);
         }
         self.rings.iter_mut().zip(&o.rings).for_each(|(a, b)| *a |= *b);
+        self.sweep_rings.extend(o.sweep_rings);
         self.ring_known |= o.ring_known;
         self.intensity.merge(&o.intensity);
         self.intensity_fine.merge(&o.intensity_fine);
@@ -608,6 +630,10 @@ impl LidarAcc {
             rings: self
                 .ring_known
                 .then(|| self.rings.iter().filter(|&&s| s).count() as u32),
+            rings_per_sweep: match (self.sweep_rings.iter().min(), self.sweep_rings.iter().max()) {
+                (Some(&lo), Some(&hi)) => Some([lo, hi]),
+                _ => None,
+            },
             intensity: IntensityStats {
                 median: self.intensity_fine.quantile(0.5),
                 p05: self.intensity_fine.quantile(0.05),

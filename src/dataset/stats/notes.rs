@@ -15,9 +15,32 @@ const POINTS_RATIO: f64 = 2.0;
 pub fn out_of_depth_notes(trained_on: &StatsSummary, data: &StatsSummary) -> Vec<String> {
     let mut notes = Vec::new();
     let t = trained_on;
-    match (t.rings, data.rings) {
-        (Some(a), Some(b)) if a != b => notes.push(format!("{b} rings: the model saw {a}")),
-        (Some(a), None) => notes.push(format!("the ring index is unknown: the model saw {a} rings")),
+    // The data's rings per sweep (its most), against what the model saw: one count, or the span of
+    // several sensors' counts when its training data mixed them.
+    let saw = match (t.rings_per_sweep, t.rings) {
+        (Some([lo, hi]), _) if lo < hi => Some((lo, hi)),
+        (_, Some(a)) => Some((a, a)),
+        _ => None,
+    };
+    let saw_words = |(lo, hi): (u32, u32)| {
+        if lo < hi {
+            format!("{lo}–{hi}")
+        } else {
+            lo.to_string()
+        }
+    };
+    let data_rings = match saw {
+        Some((lo, hi)) if lo < hi => data.rings_per_sweep.map(|[_, most]| most).or(data.rings),
+        _ => data.rings,
+    };
+    match (saw, data_rings) {
+        (Some((lo, hi)), Some(b)) if !(lo..=hi).contains(&b) => {
+            notes.push(format!("{b} rings: the model saw {}", saw_words((lo, hi))))
+        }
+        (Some(span), None) => notes.push(format!(
+            "the ring index is unknown: the model saw {} rings",
+            saw_words(span)
+        )),
         _ => {}
     }
     let trained_range = format!(
@@ -124,6 +147,7 @@ mod tests {
         StatsSummary {
             samples: 200,
             rings: Some(40),
+            rings_per_sweep: Some([40, 40]),
             intensity_median: 12.0,
             intensity_p05: 2.0,
             intensity_p95: 60.0,
@@ -160,6 +184,7 @@ mod tests {
         let kitti = StatsSummary {
             samples: 6,
             rings: Some(64),
+            rings_per_sweep: None,
             intensity_median: 74.0,
             intensity_p05: 0.0,
             intensity_p95: 150.0,
@@ -231,5 +256,38 @@ mod tests {
         assert_eq!(notes.len(), 2, "{notes:?}");
         assert!(notes[0].contains("2.20 m above"), "{}", notes[0]);
         assert!(notes[1].contains("3.0× fewer"), "{}", notes[1]);
+    }
+
+    #[test]
+    fn a_model_trained_on_several_sensors_names_their_span() {
+        // v4: roof LiDARs of 32 to 128 rings; the union of ring indices is 128.
+        let t = StatsSummary {
+            rings: Some(128),
+            rings_per_sweep: Some([32, 128]),
+            ..summary()
+        };
+        let with = |rings, per| StatsSummary {
+            rings: Some(rings),
+            rings_per_sweep: per,
+            ..summary()
+        };
+        // KITTI's 64 and a 40-ring sweep (an old summary without the span) are within it.
+        assert!(out_of_depth_notes(&t, &with(64, Some([64, 64]))).is_empty());
+        assert!(out_of_depth_notes(&t, &with(40, None)).is_empty());
+        // A 16-ring unit is not, and the span is named.
+        assert_eq!(
+            out_of_depth_notes(&t, &with(16, Some([16, 16]))),
+            ["16 rings: the model saw 32–128"]
+        );
+        // Unknown rings name the span too.
+        let unknown = StatsSummary {
+            rings: None,
+            rings_per_sweep: None,
+            ..summary()
+        };
+        assert_eq!(
+            out_of_depth_notes(&t, &unknown),
+            ["the ring index is unknown: the model saw 32–128 rings"]
+        );
     }
 }

@@ -79,6 +79,7 @@ fn sample_data_stats_match_a_brute_force_count() {
 
     let mut per_channel: BTreeMap<LidarChannel, Vec<usize>> = BTreeMap::new();
     let mut top_rings = HashSet::new();
+    let mut sweep_rings: Vec<usize> = Vec::new();
     let mut top_intensity: Vec<f32> = Vec::new();
     // Cars: (range bin, points inside) computed with a 4×4 matrix and the box's own axes.
     let mut cars: Vec<(usize, usize, usize)> = Vec::new();
@@ -103,6 +104,14 @@ fn sample_data_stats_match_a_brute_force_count() {
             }
             if scan.info.channel == LidarChannel::Top {
                 top_rings.extend(scan.points.ring.iter().filter(|r| **r >= 0.0).map(|r| *r as i64));
+                let distinct: HashSet<i64> = scan
+                    .points
+                    .ring
+                    .iter()
+                    .filter(|r| **r >= 0.0)
+                    .map(|r| *r as i64)
+                    .collect();
+                sweep_rings.push(distinct.len());
                 top_intensity.extend(&scan.points.intensity);
             }
         }
@@ -140,6 +149,11 @@ fn sample_data_stats_match_a_brute_force_count() {
     assert_eq!(stats.lidars.len(), per_channel.len());
     let top = stats.lidar(LidarChannel::Top).unwrap();
     assert_eq!(top.rings, Some(top_rings.len() as u32));
+    let (fewest, most) = (
+        sweep_rings.iter().min().unwrap(),
+        sweep_rings.iter().max().unwrap(),
+    );
+    assert_eq!(top.rings_per_sweep, Some([*fewest as u32, *most as u32]));
     top_intensity.sort_by(f32::total_cmp);
     let lower_median = top_intensity[top_intensity.len().div_ceil(2) - 1] as f64;
     assert!(
@@ -164,6 +178,7 @@ fn sample_data_stats_match_a_brute_force_count() {
     );
     let s = stats.summary();
     assert_eq!(s.rings, top.rings);
+    assert_eq!(s.rings_per_sweep, top.rings_per_sweep);
     assert_eq!(s.points_per_sweep_median, top.points_per_sweep.median);
     assert_eq!(s.lidars, ["LIDAR_TOP", "LIDAR_FRONT_LEFT", "LIDAR_FRONT_RIGHT"]);
     // The cheap summary agrees with the full one over the same samples.
