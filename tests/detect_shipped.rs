@@ -21,57 +21,80 @@ fn check_fixture(path: &Path, json: &str, bless: bool, what: &str) {
     assert!(committed == json, "{what} differ from {}", path.display());
 }
 
+/// The shipped set (`assets/models`, fixtures in `tests/fixtures/detections`) and the older set
+/// kept beside it (`assets/models/v2`, its fixtures in `detections/v2`, committed when v2 shipped
+/// and never re-blessed: it still loads and detects bit for bit with `--models`).
+fn model_sets() -> [(std::path::PathBuf, std::path::PathBuf); 2] {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
+    let root = default_models_dir();
+    [
+        (root.clone(), fixtures.clone()),
+        (root.join("v2"), fixtures.join("v2")),
+    ]
+}
+
 #[test]
 fn shipped_weights_reproduce_committed_detections() {
-    let models = default_models_dir();
-    let Ok(manifest) = Manifest::load(&models) else {
-        eprintln!("no assets/models/manifest.json yet: nothing to check");
-        return;
-    };
     let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
     let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
-    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
-    let bless = std::env::var_os("MLOD_BLESS").is_some();
-    let mut checked = 0;
-    for case in Case::ALL {
-        let available = match case {
-            Case::Result => [Case::Top, Case::Left, Case::Right]
-                .iter()
-                .all(|c| manifest.models.contains_key(c)),
-            c => manifest.models.contains_key(&c),
-        };
-        if !available {
+    for (models, fixtures) in model_sets() {
+        let Ok(manifest) = Manifest::load(&models) else {
+            eprintln!("no {}/manifest.json: nothing to check", models.display());
             continue;
+        };
+        // Only the shipped set's fixtures are re-blessed after a deliberate change.
+        let bless = std::env::var_os("MLOD_BLESS").is_some() && models == default_models_dir();
+        let mut checked = 0;
+        for case in Case::ALL.into_iter().chain([Case::InputPa, Case::InputTr]) {
+            let available = match case {
+                Case::Result => [Case::Top, Case::Left, Case::Right]
+                    .iter()
+                    .all(|c| manifest.models.contains_key(c)),
+                c => manifest.models.contains_key(&c),
+            };
+            if !available {
+                continue;
+            }
+            let det = load_detector(&models, case).unwrap();
+            for token in &tokens {
+                let frame = ds.frame(token).unwrap();
+                let dets = det.detect(&frame, &FuseParams::default()).unwrap();
+                let json = serde_json::to_string_pretty(&dets).unwrap() + "\n";
+                let path = fixtures.join(format!("{case}-{}.json", &token[..12]));
+                check_fixture(&path, &json, bless, &format!("{case} on {token}: detections"));
+                checked += 1;
+            }
         }
-        let det = load_detector(&models, case).unwrap();
-        for token in &tokens {
-            let frame = ds.frame(token).unwrap();
-            let dets = det.detect(&frame, &FuseParams::default()).unwrap();
-            let json = serde_json::to_string_pretty(&dets).unwrap() + "\n";
-            let path = fixtures.join(format!("{case}-{}.json", &token[..12]));
-            check_fixture(&path, &json, bless, &format!("{case} on {token}: detections"));
-            checked += 1;
-        }
+        eprintln!("{}: checked {checked} (case, frame) pairs", models.display());
+        assert!(checked >= 12, "{}: only {checked} pairs", models.display());
     }
-    eprintln!("checked {checked} (case, frame) pairs");
 }
 
 #[test]
 fn warm_started_models_name_shipped_starting_weights() {
-    let models = default_models_dir();
-    let Ok(manifest) = Manifest::load(&models) else {
-        return;
-    };
-    for (case, entry) in &manifest.models {
-        let Some(init) = &entry.init else { continue };
-        // The starting weights ship in assets/models/init/ with the checksum the manifest names,
-        // and their own entry (command, seed, steps) is on record.
-        let path = models.join("init").join(&init.file);
-        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{case}: {}: {e}", path.display()));
-        assert_eq!(mlod::detect::weights::sha256_hex(&bytes), init.sha256, "{case}");
-        let from = init.entry.as_ref().expect("the starting model's entry");
-        assert_eq!(from.sha256, init.sha256);
-        assert!(from.command.contains("train stage1") && from.steps > 0);
+    // The shipped set and the older sets kept beside it (assets/models/v2 since v4 shipped).
+    let root = default_models_dir();
+    for models in [root.clone(), root.join("v2")] {
+        let Ok(manifest) = Manifest::load(&models) else {
+            continue;
+        };
+        for (case, entry) in &manifest.models {
+            let Some(init) = &entry.init else { continue };
+            // The starting weights ship in the folder's init/ (or, for a fine-tune of a shipped
+            // model, beside it) with the checksum the manifest names, and their own entry
+            // (command, seed, steps) is on record.
+            let in_init = models.join("init").join(&init.file);
+            let path = if in_init.is_file() {
+                in_init
+            } else {
+                models.join(&init.file)
+            };
+            let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{case}: {}: {e}", path.display()));
+            assert_eq!(mlod::detect::weights::sha256_hex(&bytes), init.sha256, "{case}");
+            let from = init.entry.as_ref().expect("the starting model's entry");
+            assert_eq!(from.sha256, init.sha256);
+            assert!(from.command.contains("train stage1") && from.steps > 0);
+        }
     }
 }
 
@@ -96,6 +119,44 @@ fn v3_candidates_load_and_record_where_they_started() {
         let from = init.entry.as_ref().expect("the starting model's entry");
         assert_eq!(from.sha256, init.sha256, "{case}");
         assert!(from.command.contains("train stage1") && from.steps > 0, "{case}");
+    }
+}
+
+#[test]
+fn shipped_models_carry_the_v4_transfer_recipe() {
+    // v4 (issue 29): every stage-1 model trained from scratch on the sensor-randomised simulator
+    // with the transfer augmentation and without intensity (scripts/train-v4.sh); the cases
+    // beyond the paper fine-tuned from its Input Fusion under drift (scripts/train-beyond.sh).
+    let dir = default_models_dir();
+    let Ok(m) = Manifest::load(&dir) else {
+        return;
+    };
+    for (case, entry) in &m.models {
+        // Loading checks the file against the manifest's sha256.
+        load_detector(&dir, *case).unwrap_or_else(|e| panic!("{case}: {e}"));
+        for part in [
+            "mlod train stage1",
+            "--dataset data/v4/train",
+            "--transfer-aug",
+            "--no-intensity",
+        ] {
+            assert!(entry.command.contains(part), "{case}: {}", entry.command);
+        }
+        if case.trains_under_drift() {
+            let init = entry.init.as_ref().expect("a warm start");
+            assert_eq!(init.file, "input.safetensors", "{case}");
+            assert_eq!(Some(&init.sha256), m.models.get(&Case::Input).map(|e| &e.sha256));
+        } else {
+            assert_eq!(entry.steps, 10_000, "{case}");
+            assert!(entry.init.is_none(), "{case}: v4 trains from scratch");
+        }
+        assert!(entry.test_ap.contains_key("moderate_ap3d_0.7"), "{case}");
+    }
+    // Trained without intensity, so the training-data notes leave intensity out.
+    assert!(!mlod::detect::weights::models_read_intensity(&dir));
+    for r in [&m.refiner, &m.refiner_notrace] {
+        let r = r.as_ref().expect("both refiners ship");
+        assert!(r.command.contains("--dataset data/v4/train"), "{}", r.command);
     }
 }
 
@@ -148,45 +209,67 @@ fn voting_moves_the_boxes_but_keeps_the_detections() {
 /// classification head's probability, the proposal it came from and its active points.
 #[test]
 fn shipped_refiner_reproduces_committed_refinements() {
-    let models = default_models_dir();
-    let Ok(manifest) = Manifest::load(&models) else {
-        return;
-    };
-    if manifest.refiner.is_none() {
-        eprintln!("no refiner in assets/models/manifest.json yet: nothing to check");
-        return;
-    }
     let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
     let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
-    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
-    let bless = std::env::var_os("MLOD_BLESS").is_some();
     let params = FuseParams {
         perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).unwrap(),
         ..Default::default()
     };
-    for case in Case::MLOD {
-        let m = mlod::refine::load_mlod(&models, case, Default::default()).unwrap();
-        for token in &tokens {
-            let run = m.run(&ds.frame(token).unwrap(), &params).unwrap();
-            let rows: Vec<serde_json::Value> = run
-                .refined
-                .iter()
-                .map(|r| {
-                    serde_json::json!({
-                        "box": r.detection,
-                        "refined_score": r.refined_score,
-                        "proposal": r.proposal,
-                        "proposal_box": run.proposals[r.proposal],
-                        "active": r.active,
-                        "unrefined": r.unrefined,
+    for (models, fixtures) in model_sets() {
+        let Ok(manifest) = Manifest::load(&models) else {
+            continue;
+        };
+        if manifest.refiner.is_none() {
+            eprintln!(
+                "no refiner in {}/manifest.json: nothing to check",
+                models.display()
+            );
+            continue;
+        }
+        let bless = std::env::var_os("MLOD_BLESS").is_some() && models == default_models_dir();
+        // The paper's MLOD cases, and those beyond it whose stage-1 weights the set has.
+        let weights_of = |c: Case| match c {
+            Case::Result => vec![Case::Top, Case::Left, Case::Right],
+            Case::InputDrop => vec![Case::Input],
+            c => vec![c],
+        };
+        // (v2's fixtures predate the cases beyond the paper.)
+        let beyond: &[Case] = if models == default_models_dir() {
+            &Case::BEYOND
+        } else {
+            &[]
+        };
+        let cases = Case::MLOD.into_iter().chain(beyond.iter().copied()).filter(|c| {
+            c.is_mlod()
+                && c.proposal_cases()
+                    .into_iter()
+                    .flat_map(weights_of)
+                    .all(|m| manifest.models.contains_key(&m))
+        });
+        for case in cases {
+            let m = mlod::refine::load_mlod(&models, case, Default::default()).unwrap();
+            for token in &tokens {
+                let run = m.run(&ds.frame(token).unwrap(), &params).unwrap();
+                let rows: Vec<serde_json::Value> = run
+                    .refined
+                    .iter()
+                    .map(|r| {
+                        serde_json::json!({
+                            "box": r.detection,
+                            "refined_score": r.refined_score,
+                            "proposal": r.proposal,
+                            "proposal_box": run.proposals[r.proposal],
+                            "active": r.active,
+                            "unrefined": r.unrefined,
+                        })
                     })
-                })
-                .collect();
-            let json = serde_json::to_string_pretty(&rows).unwrap() + "\n";
-            let path = fixtures.join(format!("{case}-a0.04-{}.json", &token[..12]));
-            check_fixture(&path, &json, bless, &format!("{case} on {token}: refinements"));
-            // Every refinement points at a proposal of its run.
-            assert!(run.refined.iter().all(|r| r.proposal < run.proposals.len()));
+                    .collect();
+                let json = serde_json::to_string_pretty(&rows).unwrap() + "\n";
+                let path = fixtures.join(format!("{case}-a0.04-{}.json", &token[..12]));
+                check_fixture(&path, &json, bless, &format!("{case} on {token}: refinements"));
+                // Every refinement points at a proposal of its run.
+                assert!(run.refined.iter().all(|r| r.proposal < run.proposals.len()));
+            }
         }
     }
 }

@@ -57,7 +57,12 @@ fn set_intensity_reaches_the_detector_and_absurd_values_are_refused() {
     let args = ["detect", "--dataset", "sample_data", "--case", "top", "--json"];
     let a = json(&args);
     let b = json(&[&args[..], &["--set-intensity", "100"]].concat());
-    // The shipped LiDAR-Top reads intensity: its boxes change when every point reads 100.
+    // The shipped (v4) LiDAR-Top was trained without intensity: every point reading 100 changes
+    // nothing. The v2 LiDAR-Top reads it: its boxes change.
+    assert_eq!(a["detections"], b["detections"]);
+    let v2 = [&args[..], &["--models", "assets/models/v2"]].concat();
+    let a = json(&v2);
+    let b = json(&[&v2[..], &["--set-intensity", "100"]].concat());
     assert_ne!(a["detections"], b["detections"]);
     for bad in ["-1", "NaN", "inf", "70000", "loud"] {
         let arg = format!("--set-intensity={bad}");
