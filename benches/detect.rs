@@ -112,9 +112,10 @@ fn bench_refine(c: &mut Criterion) {
     g.bench_function("50_proposals", |b| {
         b.iter(|| black_box(refiner.refine(&cloud, &proposals).expect("refine")))
     });
-    // MLOD-I and the proposal union of issue 32 (two stage-1 networks, the refiner on both
-    // proposal lists, NMS after it): whole runs, fuse included.
-    for case in [Case::MlodI, Case::MlodU] {
+    // MLOD-I, the proposal union of issue 32 (two stage-1 networks, the refiner on both
+    // proposal lists, NMS after it) and its chosen case, mlod-i-drop (the uncertain points
+    // dropped before stage 1, the refiner on every point): whole runs, fuse included.
+    for case in [Case::MlodI, Case::MlodU, Case::MlodIDrop] {
         if let Ok(m) = mlod::refine::load_mlod(&default_models_dir(), case, Default::default()) {
             g.bench_function(case.as_str(), |b| {
                 b.iter(|| black_box(m.run(&frame, &params).expect("run")))
