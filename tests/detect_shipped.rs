@@ -21,41 +21,74 @@ fn check_fixture(path: &Path, json: &str, bless: bool, what: &str) {
     assert!(committed == json, "{what} differ from {}", path.display());
 }
 
+/// A models folder and the fixtures its detections are checked against.
+struct ModelSet {
+    models: std::path::PathBuf,
+    fixtures: std::path::PathBuf,
+    /// The shipped set: the only one whose fixtures `MLOD_BLESS` rewrites, and the only one
+    /// with fixtures for the cases beyond the paper.
+    shipped: bool,
+}
+
 /// The shipped set (`assets/models`, fixtures in `tests/fixtures/detections`) and the older set
 /// kept beside it (`assets/models/v2`, its fixtures in `detections/v2`, committed when v2 shipped
 /// and never re-blessed: it still loads and detects bit for bit with `--models`).
-fn model_sets() -> [(std::path::PathBuf, std::path::PathBuf); 2] {
+fn model_sets() -> [ModelSet; 2] {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
     let root = default_models_dir();
     [
-        (root.clone(), fixtures.clone()),
-        (root.join("v2"), fixtures.join("v2")),
+        ModelSet {
+            models: root.clone(),
+            fixtures: fixtures.clone(),
+            shipped: true,
+        },
+        ModelSet {
+            models: root.join("v2"),
+            fixtures: fixtures.join("v2"),
+            shipped: false,
+        },
     ]
+}
+
+/// Whether `manifest` holds every stage-1 weights file `case` runs: Result Fusion's three
+/// generators, Input Fusion's for `input-drop`, else the case's own; for an MLOD case, those of
+/// every stage 1 whose proposals it refines.
+fn has_weights(manifest: &Manifest, case: Case) -> bool {
+    let stage1 = if case.is_mlod() {
+        case.proposal_cases()
+    } else {
+        vec![case]
+    };
+    stage1.into_iter().all(|c| match c {
+        Case::Result => [Case::Top, Case::Left, Case::Right]
+            .iter()
+            .all(|g| manifest.models.contains_key(g)),
+        Case::InputDrop => manifest.models.contains_key(&Case::Input),
+        c => manifest.models.contains_key(&c),
+    })
+}
+
+fn blessing(set: &ModelSet) -> bool {
+    std::env::var_os("MLOD_BLESS").is_some() && set.shipped
 }
 
 #[test]
 fn shipped_weights_reproduce_committed_detections() {
     let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
     let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
-    for (models, fixtures) in model_sets() {
-        let Ok(manifest) = Manifest::load(&models) else {
+    for set in model_sets() {
+        let (models, fixtures) = (&set.models, &set.fixtures);
+        let Ok(manifest) = Manifest::load(models) else {
             eprintln!("no {}/manifest.json: nothing to check", models.display());
             continue;
         };
-        // Only the shipped set's fixtures are re-blessed after a deliberate change.
-        let bless = std::env::var_os("MLOD_BLESS").is_some() && models == default_models_dir();
+        let bless = blessing(&set);
         let mut checked = 0;
         for case in Case::ALL.into_iter().chain([Case::InputPa, Case::InputTr]) {
-            let available = match case {
-                Case::Result => [Case::Top, Case::Left, Case::Right]
-                    .iter()
-                    .all(|c| manifest.models.contains_key(c)),
-                c => manifest.models.contains_key(&c),
-            };
-            if !available {
+            if !has_weights(&manifest, case) {
                 continue;
             }
-            let det = load_detector(&models, case).unwrap();
+            let det = load_detector(models, case).unwrap();
             for token in &tokens {
                 let frame = ds.frame(token).unwrap();
                 let dets = det.detect(&frame, &FuseParams::default()).unwrap();
@@ -72,9 +105,8 @@ fn shipped_weights_reproduce_committed_detections() {
 
 #[test]
 fn warm_started_models_name_shipped_starting_weights() {
-    // The shipped set and the older sets kept beside it (assets/models/v2 since v4 shipped).
-    let root = default_models_dir();
-    for models in [root.clone(), root.join("v2")] {
+    // The shipped set and the older set kept beside it (assets/models/v2 since v4 shipped).
+    for ModelSet { models, .. } in model_sets() {
         let Ok(manifest) = Manifest::load(&models) else {
             continue;
         };
@@ -215,8 +247,9 @@ fn shipped_refiner_reproduces_committed_refinements() {
         perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).unwrap(),
         ..Default::default()
     };
-    for (models, fixtures) in model_sets() {
-        let Ok(manifest) = Manifest::load(&models) else {
+    for set in model_sets() {
+        let (models, fixtures) = (&set.models, &set.fixtures);
+        let Ok(manifest) = Manifest::load(models) else {
             continue;
         };
         if manifest.refiner.is_none() {
@@ -226,28 +259,16 @@ fn shipped_refiner_reproduces_committed_refinements() {
             );
             continue;
         }
-        let bless = std::env::var_os("MLOD_BLESS").is_some() && models == default_models_dir();
-        // The paper's MLOD cases, and those beyond it whose stage-1 weights the set has.
-        let weights_of = |c: Case| match c {
-            Case::Result => vec![Case::Top, Case::Left, Case::Right],
-            Case::InputDrop => vec![Case::Input],
-            c => vec![c],
-        };
-        // (v2's fixtures predate the cases beyond the paper.)
-        let beyond: &[Case] = if models == default_models_dir() {
-            &Case::BEYOND
-        } else {
-            &[]
-        };
-        let cases = Case::MLOD.into_iter().chain(beyond.iter().copied()).filter(|c| {
-            c.is_mlod()
-                && c.proposal_cases()
-                    .into_iter()
-                    .flat_map(weights_of)
-                    .all(|m| manifest.models.contains_key(&m))
-        });
+        let bless = blessing(&set);
+        // The paper's MLOD cases, and those beyond it whose stage-1 weights the set has (v2's
+        // fixtures predate the cases beyond the paper).
+        let beyond: &[Case] = if set.shipped { &Case::BEYOND } else { &[] };
+        let cases = Case::MLOD
+            .into_iter()
+            .chain(beyond.iter().copied())
+            .filter(|&c| c.is_mlod() && has_weights(&manifest, c));
         for case in cases {
-            let m = mlod::refine::load_mlod(&models, case, Default::default()).unwrap();
+            let m = mlod::refine::load_mlod(models, case, Default::default()).unwrap();
             for token in &tokens {
                 let run = m.run(&ds.frame(token).unwrap(), &params).unwrap();
                 let rows: Vec<serde_json::Value> = run
