@@ -113,9 +113,17 @@ fn bench_refine(c: &mut Criterion) {
         b.iter(|| black_box(refiner.refine(&cloud, &proposals).expect("refine")))
     });
     // MLOD-I, the proposal union of issue 32 (two stage-1 networks, the refiner on both
-    // proposal lists, NMS after it) and its chosen case, mlod-i-drop (the uncertain points
-    // dropped before stage 1, the refiner on every point): whole runs, fuse included.
-    for case in [Case::MlodI, Case::MlodU, Case::MlodIDrop] {
+    // proposal lists, NMS and voting after it), mlod-i-drop (the uncertain points dropped before
+    // stage 1, the refiner on every point), mlod-r-drop (Result Fusion's three networks on the
+    // certain points) and the chosen case mlod-ir-drop (Result and Input Fusion on the certain
+    // points, four networks, their proposals refined together): whole runs, fuse included.
+    for case in [
+        Case::MlodI,
+        Case::MlodU,
+        Case::MlodIDrop,
+        Case::MlodRDrop,
+        Case::MlodIrDrop,
+    ] {
         if let Ok(m) = mlod::refine::load_mlod(&default_models_dir(), case, Default::default()) {
             g.bench_function(case.as_str(), |b| {
                 b.iter(|| black_box(m.run(&frame, &params).expect("run")))

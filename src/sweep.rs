@@ -298,13 +298,13 @@ fn read_unit(dir: &Path, u: &Unit) -> Option<UnitResult> {
     serde_json::from_slice(&bytes).ok()
 }
 
-/// The stage-1 networks a case runs (Input Fusion for `input-drop`; LiDAR-Top and a fusion case
-/// for a proposal union).
+/// The stage-1 networks a case runs (Input Fusion for `input-drop`, Result Fusion for
+/// `result-drop`; each stage 1 of a proposal union).
 fn base_cases(c: Case) -> Vec<Case> {
     c.without_oc()
         .proposal_cases()
         .into_iter()
-        .map(|b| if b == Case::InputDrop { Case::Input } else { b })
+        .map(|b| b.dropped().unwrap_or(b))
         .collect()
 }
 
@@ -361,14 +361,22 @@ fn detect_sample(
     };
     let mut proposals: HashMap<(Case, bool), Vec<Detection>> = HashMap::new();
     let mut out = HashMap::new();
-    if cases.iter().any(|c| c.without_oc().stage1() == Case::InputDrop) {
+    // The certain points' cloud, made once for every "drop" stage 1 that a case needs.
+    let drops: Vec<Case> = [Case::InputDrop, Case::ResultDrop]
+        .into_iter()
+        .filter(|d| cases.iter().any(|c| c.without_oc().proposal_cases().contains(d)))
+        .collect();
+    if !drops.is_empty() {
         let t = cfg.drop_trace.unwrap_or(crate::detect::drop::DROP_TRACE);
-        let d = det
-            .stage1
-            .get(&Case::Input)
-            .ok_or_else(|| SweepError::BadParameter("no Input Fusion detector".into()))?;
         let kept = crate::detect::drop::drop_uncertain(&drifted, t);
-        proposals.insert((Case::InputDrop, false), d.detect_fused(&frame, &kept)?);
+        for drop in drops {
+            let base = drop.dropped().unwrap_or(drop);
+            let d = det
+                .stage1
+                .get(&base)
+                .ok_or_else(|| SweepError::BadParameter(format!("no detector for {base}")))?;
+            proposals.insert((drop, false), d.detect_fused(&frame, &kept)?);
+        }
     }
     for &case in cases {
         let oc = case.is_oc();

@@ -658,6 +658,63 @@ fn tune_vote_records_its_choice_in_the_manifest() {
     let best = if half > off { half } else { off };
     assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("{best:.2}")));
 
+    // The union cases' decoding alone (issue 32): the MLOD-I/F/R choice and its command stay,
+    // the union's NMS and box voting are chosen on the same validation scene.
+    for f in ["input.safetensors", "refiner.safetensors"] {
+        std::fs::copy(shipped.join(f), models.join(f)).expect("copy the shipped model");
+    }
+    let out = mlod(&[
+        "train",
+        "tune-refiner",
+        "--dataset",
+        d,
+        "--models",
+        m,
+        "--union-only",
+        "--union-cases",
+        "mlod-u",
+        "--alphas",
+        "0",
+        "--union-nms",
+        "0.3",
+        "--union-vote",
+        "0.5",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let tuned: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(models.join("manifest.json")).expect("manifest"))
+            .expect("JSON");
+    let (r, r0) = (&tuned["refine"], &before["refine"]);
+    assert_eq!((&r["score"], &r["nms_iou"]), (&r0["score"], &r0["nms_iou"]));
+    let cmd = r["command"].as_str().expect("command");
+    assert!(
+        cmd.starts_with(
+            r0["command"]
+                .as_str()
+                .expect("old command")
+                .split(" && ")
+                .next()
+                .expect("one")
+        ) && cmd.contains(" && ")
+            && cmd.contains("--union-only"),
+        "{cmd}"
+    );
+    let plain = r["validation"]["union+nms0.3"]["mlod-u@0"]
+        .as_f64()
+        .expect("plain NMS scored");
+    let voted = r["validation"]["union+nms0.3+vote0.5"]["mlod-u@0"]
+        .as_f64()
+        .expect("voting scored");
+    assert_eq!(r["union_nms_iou"].as_f64(), Some(0.3));
+    if voted > plain {
+        assert_eq!(r["union_vote_iou"].as_f64(), Some(0.5), "{r}");
+    } else {
+        assert!(r["union_vote_iou"].is_null(), "a tie keeps plain NMS: {r}");
+    }
+    // The MLOD-I/F/R candidates' scores are the shipped ones, the old union ones are gone.
+    assert_eq!(r["validation"]["mean"], r0["validation"]["mean"]);
+    assert!(r["validation"].get("union+nms0.7").is_none());
+
     // sample_data is one scene: no validation split, said clearly.
     let sample = format!("{root}/sample_data");
     for args in [

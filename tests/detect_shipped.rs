@@ -59,11 +59,10 @@ fn has_weights(manifest: &Manifest, case: Case) -> bool {
     } else {
         vec![case]
     };
-    stage1.into_iter().all(|c| match c {
+    stage1.into_iter().all(|c| match c.dropped().unwrap_or(c) {
         Case::Result => [Case::Top, Case::Left, Case::Right]
             .iter()
             .all(|g| manifest.models.contains_key(g)),
-        Case::InputDrop => manifest.models.contains_key(&Case::Input),
         c => manifest.models.contains_key(&c),
     })
 }

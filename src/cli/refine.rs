@@ -170,6 +170,17 @@ pub struct TuneRefinerArgs {
     /// comma separated). Needs LiDAR-Top and Input Fusion in the models folder.
     #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.7")]
     union_nms: Vec<f64>,
+    /// The union cases' box-voting IoUs tried after their NMS besides none (comma separated;
+    /// empty: none tried).
+    #[arg(long, value_delimiter = ',')]
+    union_vote: Vec<f64>,
+    /// The union cases the union decoding is scored on (their mean over --alphas).
+    #[arg(long, value_delimiter = ',', default_value = "mlod-u")]
+    union_cases: Vec<Case>,
+    /// Keep the manifest's MLOD-I/F/R decoding (score rule and NMS); choose the union cases'
+    /// decoding only.
+    #[arg(long)]
+    union_only: bool,
 }
 
 /// `mlod train tune-refiner`: MLOD-I/F/R over the validation scenes at each α, every decoding
@@ -222,9 +233,27 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
             .map(|t| -> Result<_> { Ok((t.clone(), m.run(&dataset.frame(t)?, &params)?)) })
             .collect()
     };
+    let manifest = Manifest::load(&models)?;
     let mut validation: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
-    for case in Case::MLOD {
-        let mlod_det = load_mlod(&models, case, Voting::Manifest)?;
+    if a.union_only {
+        let kept = manifest
+            .refine
+            .as_ref()
+            .context("--union-only needs a manifest whose refine decoding is chosen")?;
+        validation = kept.validation.clone();
+        validation.retain(|k, _| !k.starts_with("union+"));
+        candidates = vec![Decoding::of(Some(kept)).map_err(anyhow::Error::msg)?];
+    }
+    let cases: &[Case] = if a.union_only { &[] } else { &Case::MLOD };
+    for &case in cases {
+        let mut mlod_det = load_mlod(&models, case, Voting::Manifest)?;
+        // Runs keep every refined box: each candidate's NMS is applied by `redecode`.
+        let all = Decoding {
+            nms_iou: None,
+            vote_iou: None,
+            ..mlod_det.refiner().decoding
+        };
+        anyhow::ensure!(mlod_det.set_decoding(all), "the refiner is shared");
         for &alpha in &a.alphas {
             let runs = runs_at(&mlod_det, alpha)?;
             for d in &candidates {
@@ -243,6 +272,7 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
     let mut best: Option<(Decoding, f64)> = None;
     for d in &candidates {
         let per = validation.entry(name(d)).or_default();
+        per.remove("mean");
         let mean = per.values().sum::<f64>() / per.len().max(1) as f64;
         per.insert("mean".into(), mean);
         println!("{:<16} mean car moderate AP_3D@0.7 {mean:.2}", name(d));
@@ -251,60 +281,108 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
         }
     }
     let (d, mean) = best.context("no candidate")?;
-    // The union case's NMS, with the chosen score rule (issue 32).
-    let mut union_best: Option<(f64, f64)> = None;
-    let manifest = Manifest::load(&models)?;
-    if [Case::Top, Case::Input]
-        .iter()
-        .all(|c| manifest.models.contains_key(c))
-    {
-        let union = load_mlod(&models, Case::MlodU, Voting::Manifest)?;
-        let mut per_iou: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
-        for &alpha in &a.alphas {
-            let runs = runs_at(&union, alpha)?;
-            for &v in &a.union_nms {
-                if !(v > 0.0 && v <= 1.0) {
-                    anyhow::bail!("--union-nms {v} is not an IoU in (0, 1]");
-                }
-                let dd = Decoding {
-                    nms_iou: Some(v),
-                    ..d
+    // The union cases' NMS and box voting, with the chosen score rule (issue 32).
+    let mut union_best: Option<((f64, Option<f64>), f64)> = None;
+    let union_name = |v: f64, vote: Option<f64>| match vote {
+        Some(w) => format!("union+nms{v}+vote{w}"),
+        None => format!("union+nms{v}"),
+    };
+    for v in a.union_nms.iter().chain(&a.union_vote) {
+        if !(*v > 0.0 && *v <= 1.0) {
+            anyhow::bail!("--union-nms / --union-vote {v} is not an IoU in (0, 1]");
+        }
+    }
+    let votes: Vec<Option<f64>> = std::iter::once(None)
+        .chain(a.union_vote.iter().map(|w| Some(*w)))
+        .collect();
+    let runnable = |c: &Case| {
+        c.is_union()
+            && c.proposal_cases().iter().all(|p| {
+                let base = p.dropped().unwrap_or(*p);
+                let nets = if base == Case::Result {
+                    vec![Case::Top, Case::Left, Case::Right]
+                } else {
+                    vec![base]
                 };
-                let dets: HashMap<String, Vec<mlod::detect::Detection>> =
-                    runs.iter().map(|(t, r)| (t.clone(), redecode(r, dd))).collect();
-                let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
-                let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).unwrap_or(0.0);
-                eprintln!("{} α {alpha} nms {v}: {ap:.2}", Case::MlodU.paper_name());
-                per_iou
-                    .entry(format!("union+nms{v}"))
-                    .or_default()
-                    .insert(format!("{}@{alpha}", Case::MlodU), ap);
+                nets.iter().all(|n| manifest.models.contains_key(n))
+            })
+    };
+    if !a.union_cases.is_empty() && a.union_cases.iter().all(runnable) {
+        let mut per_iou: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+        for &case in &a.union_cases {
+            let mut union = load_mlod(&models, case, Voting::Manifest)?;
+            let all = Decoding {
+                nms_iou: None,
+                vote_iou: None,
+                ..union.refiner().decoding
+            };
+            anyhow::ensure!(union.set_decoding(all), "the refiner is shared");
+            for &alpha in &a.alphas {
+                let runs = runs_at(&union, alpha)?;
+                for &v in &a.union_nms {
+                    for &vote in &votes {
+                        let dd = Decoding {
+                            nms_iou: Some(v),
+                            vote_iou: vote,
+                            ..d
+                        };
+                        let dets: HashMap<String, Vec<mlod::detect::Detection>> =
+                            runs.iter().map(|(t, r)| (t.clone(), redecode(r, dd))).collect();
+                        let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
+                        let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).unwrap_or(0.0);
+                        eprintln!("{} α {alpha} {}: {ap:.2}", case.paper_name(), union_name(v, vote));
+                        per_iou
+                            .entry(union_name(v, vote))
+                            .or_default()
+                            .insert(format!("{case}@{alpha}"), ap);
+                    }
+                }
             }
         }
         for &v in &a.union_nms {
-            let per = per_iou.entry(format!("union+nms{v}")).or_default();
-            let m = per.values().sum::<f64>() / per.len().max(1) as f64;
-            per.insert("mean".into(), m);
-            println!("union+nms{v:<10} mean car moderate AP_3D@0.7 {m:.2}");
-            if union_best.is_none_or(|(_, b)| m > b) {
-                union_best = Some((v, m));
+            for &vote in &votes {
+                let per = per_iou.entry(union_name(v, vote)).or_default();
+                let m = per.values().sum::<f64>() / per.len().max(1) as f64;
+                per.insert("mean".into(), m);
+                println!("{:<26} mean car moderate AP_3D@0.7 {m:.2}", union_name(v, vote));
+                if union_best.is_none_or(|(_, b)| m > b) {
+                    union_best = Some(((v, vote), m));
+                }
             }
         }
         validation.extend(per_iou);
+    }
+    if a.union_only && union_best.is_none() {
+        anyhow::bail!(
+            "--union-only: the union cases {:?} need their stage-1 weights in {}",
+            a.union_cases.iter().map(|c| c.as_str()).collect::<Vec<_>>(),
+            models.display()
+        );
     }
     let mut manifest = manifest;
     manifest.refine = Some(RefineTuning {
         score: d.score.as_str().to_string(),
         nms_iou: d.nms_iou,
-        union_nms_iou: union_best.map(|(v, _)| v),
-        command,
+        union_nms_iou: union_best.map(|((v, _), _)| v),
+        union_vote_iou: union_best.and_then(|((_, w), _)| w),
+        // A union-only run keeps the score rule another command chose: both are on record.
+        command: match (&manifest.refine, a.union_only) {
+            (Some(old), true) => format!(
+                "{} && {command}",
+                old.command.split(" && ").next().unwrap_or_default()
+            ),
+            _ => command,
+        },
         validation,
     });
     manifest.save(&models)?;
     println!(
         "chose {} ({mean:.2}){} -> {}",
         name(&d),
-        union_best.map_or(String::new(), |(v, m)| format!(", union cases nms {v} ({m:.2})")),
+        union_best.map_or(String::new(), |((v, w), m)| format!(
+            ", union cases {} ({m:.2})",
+            union_name(v, w)
+        )),
         models.join(Manifest::FILE).display()
     );
     Ok(())

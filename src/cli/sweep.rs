@@ -120,7 +120,11 @@ pub fn run(args: SweepArgs) -> Result<()> {
         oc_prior: args.oc_prior,
         samples: sweep::spread_samples(&all, args.samples),
         assumed_alpha: args.assumed_alpha,
-        drop_trace: if args.cases.iter().any(|c| c.stage1() == Case::InputDrop) {
+        drop_trace: if args
+            .cases
+            .iter()
+            .any(|c| c.proposal_cases().iter().any(|p| p.dropped().is_some()))
+        {
             Some(args.drop_trace.unwrap_or(mlod::detect::drop::DROP_TRACE))
         } else {
             None

@@ -35,28 +35,35 @@ pub fn drop_uncertain(cloud: &FusedCloud, threshold: f32) -> FusedCloud {
     out
 }
 
-/// Input Fusion on the certain points only.
+/// A fusion case (Input or Result Fusion) on the certain points only (`input-drop`,
+/// `result-drop`).
 pub struct DropDetector {
     inner: Box<dyn Detector>,
+    case: Case,
     pub threshold: f32,
 }
 
 impl DropDetector {
-    /// Wraps the Input Fusion detector.
+    /// Wraps the Input or Result Fusion detector.
     pub fn new(inner: Box<dyn Detector>, threshold: f32) -> Result<Self, DetectError> {
-        if inner.case() != Case::Input || !(threshold.is_finite() && threshold >= 0.0) {
-            return Err(DetectError::BadParameter(format!(
-                "input-drop wraps Input Fusion with a threshold ≥ 0, got {} and {threshold}",
+        let case = inner.case().with_drop();
+        match case {
+            Some(case) if threshold.is_finite() && threshold >= 0.0 => Ok(Self {
+                inner,
+                case,
+                threshold,
+            }),
+            _ => Err(DetectError::BadParameter(format!(
+                "a drop case wraps Input or Result Fusion with a threshold ≥ 0, got {} and {threshold}",
                 inner.case().paper_name()
-            )));
+            ))),
         }
-        Ok(Self { inner, threshold })
     }
 }
 
 impl Detector for DropDetector {
     fn case(&self) -> Case {
-        Case::InputDrop
+        self.case
     }
 
     fn categories(&self) -> Vec<String> {
@@ -95,5 +102,49 @@ mod tests {
         assert_eq!(d.lidars[0].range, 0..1);
         assert_eq!(d.lidars[1].range, 1..3);
         assert_eq!(d.source, vec![0, 1, 1]);
+    }
+
+    /// A stand-in detector of a given case (constructors only look at the case).
+    struct Fake(Case);
+
+    impl Detector for Fake {
+        fn case(&self) -> Case {
+            self.0
+        }
+        fn categories(&self) -> Vec<String> {
+            vec!["car".into()]
+        }
+        fn detect_fused(&self, _: &Frame, _: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+            Ok(Vec::new())
+        }
+    }
+
+    #[test]
+    fn wraps_input_and_result_fusion_only() {
+        let wrap = |c: Case, t: f32| DropDetector::new(Box::new(Fake(c)), t).map(|d| d.case());
+        assert_eq!(wrap(Case::Input, 0.1).unwrap(), Case::InputDrop);
+        assert_eq!(wrap(Case::Result, 0.1).unwrap(), Case::ResultDrop);
+        for bad in [Case::Feature, Case::Top, Case::MlodI, Case::InputDrop] {
+            assert!(wrap(bad, 0.1).is_err(), "{bad}");
+        }
+        for t in [-0.1, f32::NAN, f32::INFINITY] {
+            assert!(wrap(Case::Result, t).is_err(), "{t}");
+        }
+        // The cases built on them: what each refines and which stage 1 runs on the kept points.
+        assert_eq!(Case::ResultDrop.dropped(), Some(Case::Result));
+        assert_eq!(Case::Input.with_drop(), Some(Case::InputDrop));
+        assert_eq!(Case::Feature.with_drop(), None);
+        assert_eq!(Case::MlodRDrop.proposal_cases(), vec![Case::ResultDrop]);
+        assert_eq!(
+            Case::MlodIrDrop.proposal_cases(),
+            vec![Case::ResultDrop, Case::InputDrop]
+        );
+        assert!(Case::MlodIrDrop.is_union() && Case::MlodIrDrop.is_mlod());
+        assert!(!Case::MlodRDrop.is_union() && Case::MlodRDrop.is_mlod());
+        assert_eq!(Case::ResultDrop.refined(), Some(Case::MlodRDrop));
+        for c in [Case::ResultDrop, Case::MlodRDrop, Case::MlodIrDrop] {
+            assert_eq!(c.as_str().parse::<Case>().unwrap(), c);
+            assert!(Case::BEYOND.contains(&c) && Case::WITH_OC.contains(&c));
+        }
     }
 }

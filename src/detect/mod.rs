@@ -113,6 +113,15 @@ pub enum Case {
     /// The refiner on [`Case::InputDrop`]'s proposals (Input Fusion without its uncertain points):
     /// the refiner still sees every point, with its tr(Ξ).
     MlodIDrop,
+    /// Result Fusion on the certain points: the three single-LiDAR detectors on the fused cloud
+    /// without the points whose tr(Ξ) is above the threshold of [`Case::InputDrop`].
+    ResultDrop,
+    /// The refiner (on every point, with its tr(Ξ)) on [`Case::ResultDrop`]'s proposals: MLOD-R
+    /// when calibrated, LiDAR-Top plus what the auxiliaries still see certainly under drift.
+    MlodRDrop,
+    /// The refiner on the union of [`Case::ResultDrop`]'s and [`Case::InputDrop`]'s proposals,
+    /// merged after refinement: two fusion schemes' views of the certain points.
+    MlodIrDrop,
     /// `ext:NAME`: the detector NAME, served by another process over `mlod-detector/1`
     /// ([`external`]). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
     Ext(&'static str),
@@ -159,7 +168,7 @@ impl Case {
 
     /// The cases beyond the paper (issue 32): stage 1 trained under drift, tr(Ξ) in stage 1,
     /// and the proposal union, each with the refiner.
-    pub const BEYOND: [Case; 7] = [
+    pub const BEYOND: [Case; 10] = [
         Case::InputPa,
         Case::InputTr,
         Case::MlodIPa,
@@ -167,11 +176,14 @@ impl Case {
         Case::MlodU,
         Case::MlodUTr,
         Case::MlodIDrop,
+        Case::ResultDrop,
+        Case::MlodRDrop,
+        Case::MlodIrDrop,
     ];
 
     /// Every case: [`Case::EVERY`], [`Case::OC`], the ablations [`Case::InputDrop`] and
     /// [`Case::MlodINoTrace`], then [`Case::BEYOND`].
-    pub const WITH_OC: [Case; 24] = [
+    pub const WITH_OC: [Case; 27] = [
         Case::Top,
         Case::Left,
         Case::Right,
@@ -196,6 +208,9 @@ impl Case {
         Case::MlodU,
         Case::MlodUTr,
         Case::MlodIDrop,
+        Case::ResultDrop,
+        Case::MlodRDrop,
+        Case::MlodIrDrop,
     ];
 
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
@@ -212,6 +227,7 @@ impl Case {
             Case::MlodITr | Case::MlodUTr => Case::InputTr,
             Case::MlodU => Case::Input,
             Case::MlodIDrop => Case::InputDrop,
+            Case::MlodRDrop | Case::MlodIrDrop => Case::ResultDrop,
             Case::MlodExt(_) => external::ext_case(self.external_name().unwrap_or_default()),
             c => c,
         }
@@ -222,8 +238,26 @@ impl Case {
     pub fn proposal_cases(self) -> Vec<Case> {
         match self {
             Case::MlodU | Case::MlodUTr => vec![Case::Top, self.stage1()],
+            Case::MlodIrDrop => vec![Case::ResultDrop, Case::InputDrop],
             c => vec![c.stage1()],
         }
+    }
+
+    /// The stage-1 case a "certain points only" case runs on the cloud without its uncertain
+    /// points ([`Case::InputDrop`] → Input Fusion, [`Case::ResultDrop`] → Result Fusion).
+    pub fn dropped(self) -> Option<Case> {
+        match self {
+            Case::InputDrop => Some(Case::Input),
+            Case::ResultDrop => Some(Case::Result),
+            _ => None,
+        }
+    }
+
+    /// The "certain points only" variant of a stage-1 case, if there is one.
+    pub fn with_drop(self) -> Option<Case> {
+        [Case::InputDrop, Case::ResultDrop]
+            .into_iter()
+            .find(|c| c.dropped() == Some(self))
     }
 
     /// The name of the stage 1 whose proposals this case shows (`LiDAR-Top + Input Fusion` for
@@ -239,7 +273,7 @@ impl Case {
     /// Whether this case refines the union of several stage-1 cases' proposals (and so needs
     /// NMS after refinement: both may propose the same car).
     pub fn is_union(self) -> bool {
-        matches!(self, Case::MlodU | Case::MlodUTr)
+        matches!(self, Case::MlodU | Case::MlodUTr | Case::MlodIrDrop)
     }
 
     /// The network layout and point selection of a trainable case: Input Fusion's for the
@@ -266,6 +300,7 @@ impl Case {
             Case::InputPa => Some(Case::MlodIPa),
             Case::InputTr => Some(Case::MlodITr),
             Case::InputDrop => Some(Case::MlodIDrop),
+            Case::ResultDrop => Some(Case::MlodRDrop),
             Case::InputOc => Some(Case::MlodIOc),
             Case::FeatureOc => Some(Case::MlodFOc),
             Case::ResultOc => Some(Case::MlodROc),
@@ -286,6 +321,8 @@ impl Case {
                     | Case::MlodU
                     | Case::MlodUTr
                     | Case::MlodIDrop
+                    | Case::MlodRDrop
+                    | Case::MlodIrDrop
             )
     }
 
@@ -354,6 +391,9 @@ impl Case {
             Case::MlodU => "mlod-u",
             Case::MlodUTr => "mlod-u-tr",
             Case::MlodIDrop => "mlod-i-drop",
+            Case::ResultDrop => "result-drop",
+            Case::MlodRDrop => "mlod-r-drop",
+            Case::MlodIrDrop => "mlod-ir-drop",
             Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
@@ -385,6 +425,9 @@ impl Case {
             Case::MlodU => "MLOD-U (Top + Input proposals)",
             Case::MlodUTr => "MLOD-U with tr(Ξ) in stage 1",
             Case::MlodIDrop => "MLOD-I on the certain points' proposals",
+            Case::ResultDrop => "Result Fusion, uncertain points dropped",
+            Case::MlodRDrop => "MLOD-R on the certain points' proposals",
+            Case::MlodIrDrop => "MLOD-IR (Result + Input on the certain points)",
             Case::Ext(s) | Case::MlodExt(s) => s,
         }
     }
@@ -416,6 +459,11 @@ impl Case {
             Case::MlodU => "the refiner on LiDAR-Top's and Input Fusion's proposals together, NMS after",
             Case::MlodUTr => "the refiner on LiDAR-Top's and input-tr's proposals together, NMS after",
             Case::MlodIDrop => "the refiner (on every point) on input-drop's proposals",
+            Case::ResultDrop => "Result Fusion without the points whose tr(Ξ) is above a threshold",
+            Case::MlodRDrop => "the refiner (on every point) on result-drop's proposals",
+            Case::MlodIrDrop => {
+                "the refiner on result-drop's and input-drop's proposals together, merged after"
+            }
             Case::Ext(_) => "an external detector over mlod-detector/1",
             Case::MlodExt(_) => "the refiner on an external detector's proposals",
         }

@@ -476,7 +476,7 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
             Some(Some(v))
         }
     };
-    if case.is_oc() || case == Case::InputDrop {
+    if case.is_oc() || case.dropped().is_some() {
         return Err(DetectError::BadParameter(format!(
             "{} wraps another detector: load it with mlod::refine::load_detector",
             case.paper_name()

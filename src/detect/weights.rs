@@ -234,6 +234,9 @@ pub struct RefineTuning {
     /// (`detect::union::UNION_NMS_IOU`), as in manifests written before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub union_nms_iou: Option<f64>,
+    /// The union cases' box voting after that NMS (3D IoU); absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub union_vote_iou: Option<f64>,
     /// The command that chose it.
     pub command: String,
     /// Per candidate: car moderate AP_3D@0.7 (%) on the validation scenes per case and their mean.

@@ -28,7 +28,7 @@ impl LoadedDetector {
     /// fuse parameters.
     fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
         let case = case.without_oc();
-        if case == Case::InputDrop {
+        if case.dropped().is_some() {
             let d =
                 crate::refine::load_detector(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
             return Ok(Self::Stage1(Arc::from(d)));

@@ -30,7 +30,7 @@ use crate::dataset::Frame;
 use crate::detect::model::{load_detector_with, Voting};
 use crate::detect::weights::{read_weights, Manifest, RefineTuning};
 use crate::detect::{Case, DetectError, Detection, Detector};
-use crate::geometry::{nms, Box3d, IouKind};
+use crate::geometry::{nms, vote, Box3d, IouKind};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
 
 /// The file name of the shipped refiner in a models folder.
@@ -80,6 +80,11 @@ pub struct Decoding {
     /// The 3D-IoU NMS after refinement of the union cases (`mlod-u`, `mlod-u-tr`), which always
     /// need one: both stage-1 views may propose the same car.
     pub union_nms_iou: f64,
+    /// Box voting after the NMS (3D IoU): each kept box becomes the score-weighted mean of the
+    /// refined boxes overlapping it by at least this IoU (`None`: none). What a case runs.
+    pub vote_iou: Option<f64>,
+    /// The union cases' box voting after their NMS: two stage 1s' refined boxes of one car vote.
+    pub union_vote_iou: Option<f64>,
 }
 
 impl Default for Decoding {
@@ -88,6 +93,8 @@ impl Default for Decoding {
             score: ScoreRule::Refined,
             nms_iou: None,
             union_nms_iou: UNION_NMS_IOU,
+            vote_iou: None,
+            union_vote_iou: None,
         }
     }
 }
@@ -101,6 +108,11 @@ impl Decoding {
             } else {
                 self.nms_iou
             },
+            vote_iou: if case.is_union() {
+                self.union_vote_iou
+            } else {
+                None
+            },
             ..self
         }
     }
@@ -110,7 +122,11 @@ impl Decoding {
         let Some(t) = t else { return Ok(Self::default()) };
         let score = ScoreRule::parse(&t.score)
             .ok_or_else(|| format!("refine.score {:?} is not refined, stage1 or mean", t.score))?;
-        for (field, v) in [("nms_iou", t.nms_iou), ("union_nms_iou", t.union_nms_iou)] {
+        for (field, v) in [
+            ("nms_iou", t.nms_iou),
+            ("union_nms_iou", t.union_nms_iou),
+            ("union_vote_iou", t.union_vote_iou),
+        ] {
             if let Some(v) = v {
                 if !(v > 0.0 && v <= 1.0) {
                     return Err(format!("refine.{field} {v} is not in (0, 1]"));
@@ -121,6 +137,8 @@ impl Decoding {
             score,
             nms_iou: t.nms_iou,
             union_nms_iou: t.union_nms_iou.unwrap_or(UNION_NMS_IOU),
+            vote_iou: None,
+            union_vote_iou: t.union_vote_iou,
         })
     }
 }
@@ -319,7 +337,11 @@ impl Refiner {
                 unrefined: false,
             });
         }
-        Ok(rank_and_suppress(out, self.decoding.nms_iou))
+        Ok(rank_and_suppress(
+            out,
+            self.decoding.nms_iou,
+            self.decoding.vote_iou,
+        ))
     }
 }
 
@@ -341,14 +363,15 @@ pub fn redecode(run: &MlodRun, d: Decoding) -> Vec<Detection> {
             r
         })
         .collect();
-    rank_and_suppress(rescored, d.nms_iou)
+    rank_and_suppress(rescored, d.nms_iou, d.vote_iou)
         .into_iter()
         .map(|r| r.detection)
         .collect()
 }
 
-/// Best score first (ties: the earlier proposal first), then the decoding's 3D-IoU NMS if any.
-fn rank_and_suppress(mut out: Vec<Refined>, nms_iou: Option<f64>) -> Vec<Refined> {
+/// Best score first (ties: the earlier proposal first), then the decoding's 3D-IoU NMS if any,
+/// then its box voting if any (the kept boxes' scores stay theirs).
+fn rank_and_suppress(mut out: Vec<Refined>, nms_iou: Option<f64>, vote_iou: Option<f64>) -> Vec<Refined> {
     out.sort_by(|a, b| {
         b.detection
             .score
@@ -358,8 +381,16 @@ fn rank_and_suppress(mut out: Vec<Refined>, nms_iou: Option<f64>) -> Vec<Refined
     if let Some(iou) = nms_iou {
         let boxes: Vec<Box3d> = out.iter().map(|r| r.detection.box3d).collect();
         let scores: Vec<f32> = out.iter().map(|r| r.detection.score).collect();
-        let keep: std::collections::HashSet<usize> =
-            nms(&boxes, &scores, iou, IouKind::ThreeD).into_iter().collect();
+        let kept = nms(&boxes, &scores, iou, IouKind::ThreeD);
+        let keep: std::collections::HashSet<usize> = kept.iter().copied().collect();
+        if let Some(v) = vote_iou {
+            let voted = vote(&boxes, &scores, &kept, v, IouKind::ThreeD);
+            for (k, b) in kept.iter().zip(voted) {
+                if let Some(r) = out.get_mut(*k) {
+                    r.detection.box3d = b;
+                }
+            }
+        }
         out = out
             .into_iter()
             .enumerate()
@@ -415,6 +446,19 @@ impl Mlod {
             case,
             stage1,
             refiner,
+        }
+    }
+
+    /// Makes this case decode as `d` says (false, and nothing changed, when its refiner is
+    /// shared with another holder). `mlod train tune-refiner` runs without NMS this way, so that
+    /// [`redecode`] sees every refined box.
+    pub fn set_decoding(&mut self, d: Decoding) -> bool {
+        match Arc::get_mut(&mut self.refiner) {
+            Some(r) => {
+                r.decoding = d;
+                true
+            }
+            None => false,
         }
     }
 
@@ -491,16 +535,32 @@ pub fn load_detector_oc(
         let inner = load_detector_oc(dir, case.without_oc(), voting, icp, prior, drop_trace)?;
         return Ok(Box::new(OcDetector::new(case, inner, *icp, prior)?));
     }
-    if case == Case::InputDrop {
-        let inner = load_detector_with(dir, Case::Input, voting)?;
-        return Ok(Box::new(crate::detect::drop::DropDetector::new(
-            inner, drop_trace,
-        )?));
+    if case.dropped().is_some() {
+        return load_stage1(dir, case, voting, drop_trace);
     }
     if !case.is_mlod() {
         return load_detector_with(dir, case, voting);
     }
     Ok(Box::new(load_mlod_with(dir, case, voting, drop_trace)?))
+}
+
+/// A stage-1 case of a models folder, a "certain points only" case (`input-drop`,
+/// `result-drop`) wrapping the fusion case it drops points for.
+fn load_stage1(
+    dir: &Path,
+    case: Case,
+    voting: Voting,
+    drop_trace: f32,
+) -> Result<Box<dyn Detector>, DetectError> {
+    match case.dropped() {
+        Some(base) => {
+            let inner = load_detector_with(dir, base, voting)?;
+            Ok(Box::new(crate::detect::drop::DropDetector::new(
+                inner, drop_trace,
+            )?))
+        }
+        None => load_detector_with(dir, case, voting),
+    }
 }
 
 /// An MLOD case of a models folder (its stage-1 detector and the folder's refiner).
@@ -521,14 +581,11 @@ pub fn load_mlod_with(dir: &Path, case: Case, voting: Voting, drop_trace: f32) -
         let parts = case
             .proposal_cases()
             .into_iter()
-            .map(|c| load_detector_with(dir, c, voting))
+            .map(|c| load_stage1(dir, c, voting, drop_trace))
             .collect::<Result<Vec<_>, _>>()?;
         Box::new(UnionDetector::new(case, parts)?)
-    } else if case.stage1() == Case::InputDrop {
-        let inner = load_detector_with(dir, Case::Input, voting)?;
-        Box::new(crate::detect::drop::DropDetector::new(inner, drop_trace)?)
     } else {
-        load_detector_with(dir, case.stage1(), voting)?
+        load_stage1(dir, case.stage1(), voting, drop_trace)?
     };
     let mut refiner =
         Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
@@ -546,6 +603,7 @@ mod tests {
             score: "mean".into(),
             nms_iou: None,
             union_nms_iou: None,
+            union_vote_iou: None,
             command: String::new(),
             validation: Default::default(),
         };
@@ -565,5 +623,55 @@ mod tests {
         let old = r#"{"score":"mean","nms_iou":null,"command":"","validation":{}}"#;
         let parsed: RefineTuning = serde_json::from_str(old).unwrap();
         assert_eq!(parsed.union_nms_iou, None);
+    }
+
+    fn refined(x: f64, score: f32, proposal: usize) -> Refined {
+        Refined {
+            detection: Detection {
+                box3d: Box3d::new([x, 0.0, 0.0], [4.0, 2.0, 1.5], 0.0),
+                score,
+                category: "car".into(),
+            },
+            proposal,
+            refined_score: score,
+            active: Vec::new(),
+            input: Vec::new(),
+            gathered: 0,
+            unrefined: false,
+        }
+    }
+
+    #[test]
+    fn a_union_case_votes_after_its_nms() {
+        let t = RefineTuning {
+            score: "mean".into(),
+            nms_iou: None,
+            union_nms_iou: Some(0.3),
+            union_vote_iou: Some(0.5),
+            command: String::new(),
+            validation: Default::default(),
+        };
+        let d = Decoding::of(Some(&t)).unwrap();
+        assert_eq!(d.for_case(Case::MlodIrDrop).vote_iou, Some(0.5));
+        assert_eq!(d.for_case(Case::MlodU).vote_iou, Some(0.5));
+        assert_eq!(d.for_case(Case::MlodRDrop).vote_iou, None);
+        assert_eq!(d.for_case(Case::MlodI).vote_iou, None);
+        // Two refinements of one car 0.4 m apart (3D IoU 0.82), equal scores, and a far car.
+        let out = vec![refined(0.0, 0.9, 0), refined(0.4, 0.9, 1), refined(20.0, 0.5, 2)];
+        let plain = rank_and_suppress(out.clone(), Some(0.3), None);
+        let voted = rank_and_suppress(out, Some(0.3), Some(0.5));
+        assert_eq!(plain.len(), 2);
+        assert_eq!(voted.len(), 2);
+        assert_eq!(plain[0].detection.box3d.center[0], 0.0);
+        // The kept box moves to the mean of the two; its score and the far car stay.
+        assert!((voted[0].detection.box3d.center[0] - 0.2).abs() < 1e-9);
+        assert_eq!(voted[0].detection.score, 0.9);
+        assert_eq!(voted[1], plain[1]);
+        // A vote IoU above 1 is refused when read from a manifest.
+        let bad = RefineTuning {
+            union_vote_iou: Some(1.5),
+            ..t
+        };
+        assert!(Decoding::of(Some(&bad)).unwrap_err().contains("union_vote_iou"));
     }
 }

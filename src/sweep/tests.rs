@@ -20,6 +20,7 @@ fn config() -> SweepConfig {
             Case::InputDrop,
             Case::MlodU,
             Case::MlodIDrop,
+            Case::MlodIrDrop,
         ],
         alphas: vec![0.1],
         trials: 2,
@@ -207,9 +208,15 @@ fn a_cell_is_what_eval_gives_for_that_case_alpha_and_seed() {
         only: Some(config().samples),
         ..Default::default()
     };
-    // `mlod eval --case CASE --alpha 0.1 --seed 4` on the same samples (input-drop with
+    // `mlod eval --case CASE --alpha 0.1 --seed 4` on the same samples (the drop cases with
     // `--drop-trace 0.1`), against the sweep's trial-1 cell.
-    for case in [Case::MlodI, Case::InputDrop, Case::MlodU, Case::MlodIDrop] {
+    for case in [
+        Case::MlodI,
+        Case::InputDrop,
+        Case::MlodU,
+        Case::MlodIDrop,
+        Case::MlodIrDrop,
+    ] {
         let det = crate::refine::load_detector(&default_models_dir(), case, Voting::Manifest).unwrap();
         let dets: HashMap<String, Vec<Detection>> = config()
             .samples
