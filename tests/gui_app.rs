@@ -909,12 +909,12 @@ fn write_screenshot_sessions() {
     // The sweep window on the committed Table II run, over the first-sight view.
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
     h.state_mut()
-        .open_sweep(&dir.join("../docs/sweeps/table2"))
+        .open_sweep(&dir.join("../docs/sweeps/v4/table2"))
         .unwrap();
     h.run_steps(2);
     let mut s = h.state().current_session();
     s.dataset = "sample_data".into();
-    s.sweep = Some("docs/sweeps/table2".into());
+    s.sweep = Some("docs/sweeps/v4/table2".into());
     s.save(&dir.join("sweep.session.json")).unwrap();
 }
 
@@ -1307,7 +1307,7 @@ fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
 
 #[test]
 fn a_sweep_folder_opens_as_its_ap_against_alpha_plot_and_the_session_keeps_it() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/table2");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/v4/table2");
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
     let before = h.render().unwrap();
     h.state_mut().open_sweep(&dir).unwrap();

@@ -1,5 +1,6 @@
-//! `sample_data/` is exactly what its documented command writes:
-//! `mlod synth --out sample_data --scenes 1 --samples-per-scene 10 --seed 0`.
+//! `sample_data/` is exactly what its documented command writes (the v4 simulator of issue 29):
+//! `mlod synth --out sample_data --scenes 1 --samples-per-scene 10 --seed 0 --roof-sensors all
+//! --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -31,6 +32,15 @@ fn sample_data_is_regenerated_byte_identically() {
         seed: 0,
         scenes: 1,
         samples_per_scene: 10,
+        roof: mlod::synth::RoofRandomisation {
+            presets: mlod::synth::SensorPreset::ALL.to_vec(),
+            height_jitter_m: 0.2,
+        },
+        car_sizes: mlod::synth::CarSizes::Mixed,
+        lidar: mlod::synth::LidarModel {
+            constant_intensity: Some(100.0),
+            ..Default::default()
+        },
         ..Default::default()
     };
     mlod::synth::generate(&cfg, &fresh, |_, _| {}).unwrap();
