@@ -75,8 +75,8 @@ Examples:
 
 pub const SYNTH_EXAMPLES: &str = "\
 Examples:
-  mlod synth --out sample_data --scenes 1 --samples-per-scene 10 --seed 0 --roof-sensors all \
-    --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft   regenerates sample_data/
+  mlod synth --out sample_data --seed 0 --roof-sensors pandar40 --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft
+                                                  regenerates sample_data/ (1 scene of 10 samples: the defaults)
   mlod synth --out data/train --scenes 80 --samples-per-scene 20 --seed 101 --progress";
 
 pub const FUSE_EXAMPLES: &str = "\
