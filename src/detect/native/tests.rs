@@ -165,12 +165,21 @@ fn gradients_equal_the_f64_reference_feature_fusion_with_size_weight() {
     gradients_match(Case::Feature, 3.0);
 }
 
+/// LiDAR-Top without intensity, as the shipped v4 models are trained: sample_data/ holds the
+/// constant 100 of real Lyft files, and a constant input channel makes the first BatchNorm
+/// ill-conditioned, so two float paths drift apart for reasons that are not theirs.
+fn top_config() -> ModelConfig {
+    let mut c = ModelConfig::new(Case::Top);
+    c.grid.intensity = false;
+    c
+}
+
 #[test]
 fn training_follows_candle_and_stores_loadable_weights() {
     let steps = 4;
     let (lr, clip) = (2e-3, 10.0);
     // Reference: candle's graph and AdamW.
-    let reference = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 9).unwrap();
+    let reference = Stage1Model::new_trainable(top_config(), 9).unwrap();
     let mut ref_opt = AdamW::new(&reference, 0.01).unwrap();
     let mut ref_curve = Vec::new();
     for step in 0..steps {
@@ -182,7 +191,7 @@ fn training_follows_candle_and_stores_loadable_weights() {
     // Native, twice from the same seed: the same curve as candle's, and bit-identical runs.
     let mut runs = Vec::new();
     for _ in 0..2 {
-        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 9).unwrap();
+        let model = Stage1Model::new_trainable(top_config(), 9).unwrap();
         let mut opt = AdamW::new(&model, 0.01).unwrap();
         let mut native = NativeTrainer::new(&model, &opt).unwrap();
         let mut curve = Vec::new();
@@ -214,8 +223,7 @@ fn training_follows_candle_and_stores_loadable_weights() {
             )
         );
         // Weights after the same steps as candle's, within float drift (AdamW's first steps
-        // are ±lr wherever a gradient is small, which magnifies rounding: 4e-3 on the pre-v4
-        // sample_data, 5e-2 in one BatchNorm bias on the v4 one, with the loss curves within 1e-3).
+        // are ±lr wherever a gradient is small, which magnifies rounding: 4e-3 at most here).
         let b = values(
             ref_opt
                 .params
@@ -225,7 +233,7 @@ fn training_follows_candle_and_stores_loadable_weights() {
                 .1
                 .as_tensor(),
         );
-        assert!(rel(&a, &b) < 1e-1, "{name}: {:e}", rel(&a, &b));
+        assert!(rel(&a, &b) < 1e-2, "{name}: {:e}", rel(&a, &b));
     }
     // Stored weights and moments are what a new trainer reads back (checkpoint round trip),
     // and a model written by the native path loads as a candle model.
