@@ -2,7 +2,7 @@
 
 use std::collections::HashMap;
 
-use super::testutil::{grads_by_name, rel, values};
+use super::testutil::{diff, grads_by_name, rel, values};
 use super::*;
 use crate::dataset::Dataset;
 use crate::detect::model::bev_tensor;
@@ -165,9 +165,8 @@ fn gradients_equal_the_f64_reference_feature_fusion_with_size_weight() {
     gradients_match(Case::Feature, 3.0);
 }
 
-/// LiDAR-Top without intensity, as the shipped v4 models are trained: sample_data/ holds the
-/// constant 100 of real Lyft files, and a constant input channel makes the first BatchNorm
-/// ill-conditioned, so two float paths drift apart for reasons that are not theirs.
+/// LiDAR-Top without intensity, as the shipped v4 models are trained (sample_data/ holds the
+/// constant 100 of real Lyft files, which the v4 models do not read).
 fn top_config() -> ModelConfig {
     let mut c = ModelConfig::new(Case::Top);
     c.grid.intensity = false;
@@ -222,8 +221,10 @@ fn training_follows_candle_and_stores_loadable_weights() {
                     .as_tensor()
             )
         );
-        // Weights after the same steps as candle's, within float drift (AdamW's first steps
-        // are ±lr wherever a gradient is small, which magnifies rounding: 4e-3 at most here).
+        // Weights after the same steps as candle's, within float drift: AdamW's first steps are
+        // ±lr wherever a gradient is small, which magnifies rounding, so an entry may differ by
+        // a fraction of one step (a parameter that starts at 0 and moved 4 steps, a BatchNorm
+        // bias, then shows a large relative error: 4e-2 on sample_data, a sixth of a step).
         let b = values(
             ref_opt
                 .params
@@ -233,7 +234,12 @@ fn training_follows_candle_and_stores_loadable_weights() {
                 .1
                 .as_tensor(),
         );
-        assert!(rel(&a, &b) < 1e-2, "{name}: {:e}", rel(&a, &b));
+        let d = diff(&a, &b);
+        assert!(
+            rel(&a, &b) < 1e-2 || d < 0.5 * lr as f32,
+            "{name}: relative {:e}, absolute {d:e} (lr {lr:e})",
+            rel(&a, &b)
+        );
     }
     // Stored weights and moments are what a new trainer reads back (checkpoint round trip),
     // and a model written by the native path loads as a candle model.
