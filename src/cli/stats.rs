@@ -190,10 +190,16 @@ fn print_summary(stats: &DatasetStats) {
         ),
     }
     println!("  ground height (m)     {}", opt(s.ground_height_m, 2));
-    println!(
-        "  points per sweep      {:.0} (median)",
-        s.points_per_sweep_median
-    );
+    match s.points_per_sweep_range {
+        Some([lo, hi]) => println!(
+            "  points per sweep      {:.0} (median; {lo:.0}–{hi:.0})",
+            s.points_per_sweep_median
+        ),
+        None => println!(
+            "  points per sweep      {:.0} (median)",
+            s.points_per_sweep_median
+        ),
+    }
     if let Some([l, w, h]) = s.car_size_mean_lwh {
         println!("  car size (m, mean)    l {l:.2}  w {w:.2}  h {h:.2}");
     }

@@ -279,6 +279,9 @@ impl DatasetStats {
             intensity_constant: top.and_then(|l| l.intensity.constant),
             ground_height_m: top.and_then(|l| l.ground_height_m),
             points_per_sweep_median: top.map_or(0.0, |l| l.points_per_sweep.median),
+            points_per_sweep_range: top
+                .filter(|l| l.sweeps > 0)
+                .map(|l| [l.points_per_sweep.min, l.points_per_sweep.max]),
             car_size_mean_lwh: self.category("car").map(|c| c.size_mean_lwh),
             lidars: self
                 .lidars
@@ -306,6 +309,10 @@ pub struct StatsSummary {
     pub intensity_constant: Option<f64>,
     pub ground_height_m: Option<f64>,
     pub points_per_sweep_median: f64,
+    /// Fewest and most LIDAR_TOP points in one sweep: wide when the data mixes sensors (absent in
+    /// summaries written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points_per_sweep_range: Option<[f64; 2]>,
     pub car_size_mean_lwh: Option<[f64; 3]>,
     /// Channels seen, LIDAR_TOP first.
     pub lidars: Vec<String>,

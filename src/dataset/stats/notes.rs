@@ -100,17 +100,29 @@ pub fn out_of_depth_notes(trained_on: &StatsSummary, data: &StatsSummary) -> Vec
             ));
         }
     }
+    // Against the training sweeps' span when the training data mixed sensors (a sweep within it
+    // is one the model has seen the like of), else against their median.
     let (a, b) = (t.points_per_sweep_median, data.points_per_sweep_median);
-    if a > 0.0 && b > 0.0 {
-        let ratio = b / a;
-        if ratio >= POINTS_RATIO || ratio <= 1.0 / POINTS_RATIO {
-            let (k, word) = if ratio >= 1.0 {
-                (ratio, "more")
-            } else {
-                (1.0 / ratio, "fewer")
-            };
+    let (lo, hi) = match t.points_per_sweep_range {
+        Some([lo, hi]) if lo > 0.0 && hi >= lo && hi / lo >= POINTS_RATIO => (lo, hi),
+        _ => (a, a),
+    };
+    if lo > 0.0 && b > 0.0 {
+        let saw = if lo < hi {
+            format!("{lo:.0}–{hi:.0}")
+        } else {
+            format!("{a:.0}")
+        };
+        let note = if b / hi >= POINTS_RATIO {
+            Some((b / hi, "more"))
+        } else if lo / b >= POINTS_RATIO {
+            Some((lo / b, "fewer"))
+        } else {
+            None
+        };
+        if let Some((k, word)) = note {
             notes.push(format!(
-                "{b:.0} points per LIDAR_TOP sweep: the model saw {a:.0} ({k:.1}× {word})"
+                "{b:.0} points per LIDAR_TOP sweep: the model saw {saw} ({k:.1}× {word})"
             ));
         }
     }
@@ -154,6 +166,7 @@ mod tests {
             intensity_constant: None,
             ground_height_m: Some(1.85),
             points_per_sweep_median: 45_000.0,
+            points_per_sweep_range: Some([41_000.0, 48_000.0]),
             car_size_mean_lwh: Some([4.8, 1.95, 1.6]),
             lidars: vec![
                 "LIDAR_TOP".into(),
@@ -191,6 +204,7 @@ mod tests {
             intensity_constant: None,
             ground_height_m: Some(1.45),
             points_per_sweep_median: 120_000.0,
+            points_per_sweep_range: Some([115_000.0, 124_000.0]),
             car_size_mean_lwh: Some([3.9, 1.6, 1.5]),
             lidars: vec!["LIDAR_TOP".into()],
         };
@@ -288,6 +302,40 @@ mod tests {
         assert_eq!(
             out_of_depth_notes(&t, &unknown),
             ["the ring index is unknown: the model saw 32–128 rings"]
+        );
+    }
+    #[test]
+    fn a_model_trained_on_several_sensors_is_judged_by_its_span_of_points() {
+        // v4: 27 k (HDL-32E) to 250 k (128 beams) points per sweep, median 108 k.
+        let t = StatsSummary {
+            points_per_sweep_median: 108_000.0,
+            points_per_sweep_range: Some([27_000.0, 250_000.0]),
+            ..summary()
+        };
+        let with = |n: f64| StatsSummary {
+            points_per_sweep_median: n,
+            points_per_sweep_range: Some([n, n]),
+            ..summary()
+        };
+        // An HDL-32E's 27.5 k is a sweep the model has seen the like of (3.9× fewer than the median).
+        assert!(out_of_depth_notes(&t, &with(27_500.0)).is_empty());
+        // Half the sparsest, or twice the densest, is named against the span.
+        assert_eq!(
+            out_of_depth_notes(&t, &with(9_000.0)),
+            ["9000 points per LIDAR_TOP sweep: the model saw 27000–250000 (3.0× fewer)"]
+        );
+        assert_eq!(
+            out_of_depth_notes(&t, &with(600_000.0)),
+            ["600000 points per LIDAR_TOP sweep: the model saw 27000–250000 (2.4× more)"]
+        );
+        // A summary written before the span existed: the median, as before.
+        let old = StatsSummary {
+            points_per_sweep_range: None,
+            ..t
+        };
+        assert_eq!(
+            out_of_depth_notes(&old, &with(27_500.0)),
+            ["27500 points per LIDAR_TOP sweep: the model saw 108000 (3.9× fewer)"]
         );
     }
 }
