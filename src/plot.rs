@@ -206,10 +206,8 @@ pub fn histogram_png(
     write_png(path, w, h, &buf, image::ExtendedColorType::Rgb8)
 }
 
-/// Ten distinguishable colours (matplotlib's tab10): the sweep plot's curves, here and in the
-/// window.
-/// How each of a plot's series is drawn: its colour (an index into [`TAB10`], one per family) and
-/// whether it is dashed. A series labelled "X (OC)" is dashed in the colour of "X"; families are
+/// How each of a plot's series is drawn: its colour (an index into [`SERIES_COLOURS`], one per
+/// family) and whether it is dashed. A series labelled "X (OC)" is dashed in the colour of "X"; families are
 /// numbered in the order they first appear. The sweep PNG and the sweep window both use this.
 pub fn series_styles<'a>(labels: impl IntoIterator<Item = &'a str>) -> Vec<(usize, bool)> {
     let mut families: Vec<&str> = Vec::new();
@@ -239,11 +237,33 @@ pub const TAB10: [[u8; 3]; 10] = [
     [23, 190, 207],
 ];
 
+/// The sweep plot's curve colours, here and in the window: tab10, then six more of mid luminance
+/// (readable on the PNG's white and the window's dark background), so that a sweep of up to 16
+/// case families (Table II's seven with the cases beyond the paper) never repeats a colour.
+pub const SERIES_COLOURS: [[u8; 3]; 16] = [
+    TAB10[0],
+    TAB10[1],
+    TAB10[2],
+    TAB10[3],
+    TAB10[4],
+    TAB10[5],
+    TAB10[6],
+    TAB10[7],
+    TAB10[8],
+    TAB10[9],
+    [0, 0, 230],
+    [230, 0, 230],
+    [0, 200, 110],
+    [150, 90, 0],
+    [255, 200, 0],
+    [90, 0, 160],
+];
+
 /// A labelled curve: points (x, mean, std).
 pub type Curve = (String, Vec<(f64, f64, f64)>);
 
 /// One curve per series (label, points (x, mean, std)) with error bars of ±std, for the sweep's
-/// AP-against-α plot; a palette of ten colours, the legend outside the curves.
+/// AP-against-α plot; [`SERIES_COLOURS`], the legend outside the curves.
 pub fn curves_with_error_bars_png(
     series: &[Curve],
     title: &str,
@@ -267,7 +287,7 @@ pub fn curves_with_error_bars_png(
     let pad = ((x1 - x0) * 0.05).max(0.002);
     let (y0, y1) = ((y0 - 2.0).max(0.0).floor(), (y1 + 2.0).min(100.0).ceil());
     let (w, h) = (900u32, 560u32);
-    let palette = TAB10.map(|[r, g, b]| RGBColor(r, g, b));
+    let palette = SERIES_COLOURS.map(|[r, g, b]| RGBColor(r, g, b));
     let mut buf = vec![0u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -579,5 +599,13 @@ mod tests {
             "LiDAR-Top",
         ]);
         assert_eq!(styles, [(0, false), (1, false), (1, true), (0, true), (2, false)]);
+    }
+
+    #[test]
+    fn sixteen_families_get_sixteen_colours() {
+        let mut seen = super::SERIES_COLOURS.to_vec();
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen.len(), 16);
     }
 }

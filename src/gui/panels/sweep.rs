@@ -8,14 +8,14 @@ use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke};
 
 use super::Panels;
 use crate::gui::state::SweepView;
-use crate::plot::{series_styles, TAB10};
+use crate::plot::{series_styles, SERIES_COLOURS};
 
 /// Each curve's colour and whether it is dashed, as the folder's `ap_vs_alpha.png` draws it.
 fn curve_styles(prog: &crate::sweep::SweepProgress) -> Vec<(Color32, bool)> {
     series_styles(prog.curves.iter().map(|(name, _)| name.as_str()))
         .into_iter()
         .map(|(k, dashed)| {
-            let [r, g, b] = TAB10[k % TAB10.len()];
+            let [r, g, b] = SERIES_COLOURS[k % SERIES_COLOURS.len()];
             (Color32::from_rgb(r, g, b), dashed)
         })
         .collect()
