@@ -31,13 +31,19 @@ pub fn sweep_window(p: &mut Panels<'_>, ctx: &egui::Context) {
     egui::Window::new(title)
         .id(egui::Id::unique("mlod_sweep_window"))
         .open(&mut open)
-        .default_size([640.0, 470.0])
+        .default_size([640.0, 400.0 + legend_height(view.progress.curves.len())])
         .resizable(true)
         .show(ctx, |ui| plot(ui, view));
     if !open {
         p.shell.sweep = None;
         p.session.sweep = None;
     }
+}
+
+/// Height the legend below the plot needs for `n` curves (about three names a row), so that a
+/// sweep with many cases (Table II with those beyond the paper) shows every name.
+fn legend_height(n: usize) -> f32 {
+    18.0 * (n.max(1) as f32 / 3.0).ceil() + 10.0
 }
 
 fn plot(ui: &mut egui::Ui, view: &SweepView) {
@@ -74,7 +80,7 @@ fn plot(ui: &mut egui::Ui, view: &SweepView) {
         .max(x0 + 1e-6);
     let size = egui::vec2(
         ui.available_width().max(200.0),
-        (ui.available_height() - 64.0).max(160.0),
+        (ui.available_height() - legend_height(prog.curves.len())).max(160.0),
     );
     let (rect, resp) = ui.allocate_exact_size(size, Sense::hover());
     let painter = ui.painter_at(rect);
