@@ -190,16 +190,13 @@ fn print_summary(stats: &DatasetStats) {
         ),
     }
     println!("  ground height (m)     {}", opt(s.ground_height_m, 2));
-    match s.points_per_sweep_range {
-        Some([lo, hi]) => println!(
-            "  points per sweep      {:.0} (median; {lo:.0}–{hi:.0})",
-            s.points_per_sweep_median
-        ),
-        None => println!(
-            "  points per sweep      {:.0} (median)",
-            s.points_per_sweep_median
-        ),
-    }
+    let span = s
+        .points_per_sweep_range
+        .map_or(String::new(), |[lo, hi]| format!("; {lo:.0}–{hi:.0}"));
+    println!(
+        "  points per sweep      {:.0} (median{span})",
+        s.points_per_sweep_median
+    );
     if let Some([l, w, h]) = s.car_size_mean_lwh {
         println!("  car size (m, mean)    l {l:.2}  w {w:.2}  h {h:.2}");
     }

@@ -104,7 +104,7 @@ pub fn out_of_depth_notes(trained_on: &StatsSummary, data: &StatsSummary) -> Vec
     // is one the model has seen the like of), else against their median.
     let (a, b) = (t.points_per_sweep_median, data.points_per_sweep_median);
     let (lo, hi) = match t.points_per_sweep_range {
-        Some([lo, hi]) if lo > 0.0 && hi >= lo && hi / lo >= POINTS_RATIO => (lo, hi),
+        Some([lo, hi]) if lo > 0.0 && hi / lo >= POINTS_RATIO => (lo, hi),
         _ => (a, a),
     };
     if lo > 0.0 && b > 0.0 {

@@ -2,7 +2,7 @@
 
 use std::collections::HashMap;
 
-use super::testutil::{grads_by_name, rel, values};
+use super::testutil::{grads_by_name, rel, rel_l2, top_without_intensity, values};
 use super::*;
 use crate::dataset::Dataset;
 use crate::detect::model::bev_tensor;
@@ -165,20 +165,12 @@ fn gradients_equal_the_f64_reference_feature_fusion_with_size_weight() {
     gradients_match(Case::Feature, 3.0);
 }
 
-/// LiDAR-Top without intensity, as the shipped v4 models are trained (sample_data/ holds the
-/// constant 100 of real Lyft files, which the v4 models do not read).
-fn top_config() -> ModelConfig {
-    let mut c = ModelConfig::new(Case::Top);
-    c.grid.intensity = false;
-    c
-}
-
 #[test]
 fn training_follows_candle_and_stores_loadable_weights() {
     let steps = 4;
     let (lr, clip) = (2e-3, 10.0);
     // Reference: candle's graph and AdamW.
-    let reference = Stage1Model::new_trainable(top_config(), 9).unwrap();
+    let reference = Stage1Model::new_trainable(top_without_intensity(), 9).unwrap();
     let mut ref_opt = AdamW::new(&reference, 0.01).unwrap();
     let mut ref_curve = Vec::new();
     for step in 0..steps {
@@ -190,7 +182,7 @@ fn training_follows_candle_and_stores_loadable_weights() {
     // Native, twice from the same seed: the same curve as candle's, and bit-identical runs.
     let mut runs = Vec::new();
     for _ in 0..2 {
-        let model = Stage1Model::new_trainable(top_config(), 9).unwrap();
+        let model = Stage1Model::new_trainable(top_without_intensity(), 9).unwrap();
         let mut opt = AdamW::new(&model, 0.01).unwrap();
         let mut native = NativeTrainer::new(&model, &opt).unwrap();
         let mut curve = Vec::new();
@@ -237,8 +229,7 @@ fn training_follows_candle_and_stores_loadable_weights() {
                 .1
                 .as_tensor(),
         );
-        let l2 = |v: &mut dyn Iterator<Item = f32>| v.map(|x| x * x).sum::<f32>().sqrt();
-        let e = l2(&mut a.iter().zip(&b).map(|(x, y)| x - y)) / l2(&mut b.iter().copied()).max(1e-12);
+        let e = rel_l2(&a, &b);
         assert!(e < 5e-2, "{name}: {e:e} (max-norm {:e})", rel(&a, &b));
     }
     // Stored weights and moments are what a new trainer reads back (checkpoint round trip),

@@ -25,6 +25,23 @@ pub(crate) fn rel(a: &[f32], b: &[f32]) -> f32 {
     diff(a, b) / scale
 }
 
+/// ‖a − b‖₂ / ‖b‖₂: the whole tensor's error, which a few entries near 0 do not dominate.
+pub(crate) fn rel_l2(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let d: f32 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    let n: f32 = b.iter().map(|y| y * y).sum();
+    d.sqrt() / n.sqrt().max(1e-12)
+}
+
+/// LiDAR-Top without intensity, as the shipped v4 models are trained (sample_data/ holds the
+/// constant 100 of real Lyft files, which the v4 models do not read): the training-path tests'
+/// model.
+pub(crate) fn top_without_intensity() -> crate::detect::ModelConfig {
+    let mut c = crate::detect::ModelConfig::new(crate::detect::Case::Top);
+    c.grid.intensity = false;
+    c
+}
+
 pub(crate) fn values(t: &Tensor) -> Vec<f32> {
     t.flatten_all().unwrap().to_vec1().unwrap()
 }
