@@ -33,10 +33,17 @@ pub struct SynthArgs {
     /// every point, as the real Lyft Level 5 files hold).
     #[arg(long, default_value = "reflectance", value_parser = ["reflectance", "lyft"])]
     intensity: String,
+    /// Vehicle side glass: `opaque` (a dark surface, as up to v4) or `see-through` (80 % of the
+    /// beams pass it and return from the cabin's lower body, what lies behind, or the ground).
+    #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through"])]
+    glass: String,
     /// Show a progress bar.
     #[arg(long)]
     progress: bool,
 }
+
+/// Share of the beams that pass a vehicle's side glass with `--glass see-through`.
+const GLASS_PASS: f64 = 0.8;
 
 fn parse_preset(s: &str) -> Result<Vec<mlod::synth::SensorPreset>, String> {
     use mlod::synth::SensorPreset;
@@ -84,6 +91,11 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         },
         lidar: mlod::synth::LidarModel {
             constant_intensity: (args.intensity == "lyft").then_some(100.0),
+            glass_pass: if args.glass == "see-through" {
+                GLASS_PASS
+            } else {
+                0.0
+            },
             ..Default::default()
         },
         ..Default::default()

@@ -67,6 +67,11 @@ pub struct RefinerArgs {
     /// Leave tr(Ξ) out of the point features (an ablation: the network then cannot see it).
     #[arg(long)]
     no_trace: bool,
+    /// The classification head learns each proposal's localisation quality (3D IoU with its
+    /// ground truth, PV-RCNN's target) instead of objectness, so the score ranks boxes by how
+    /// well they fit (issue 32).
+    #[arg(long)]
+    iou_score: bool,
     /// Continue from the checkpoint (<out>.ckpt.safetensors) after a kill.
     #[arg(long)]
     resume: bool,
@@ -117,6 +122,7 @@ pub fn refiner(a: RefinerArgs, command: String) -> Result<()> {
     cfg.checkpoint_every_s = a.checkpoint_every;
     cfg.model.gather.points = a.points;
     cfg.model.gather.features.trace = !a.no_trace;
+    cfg.model.iou_score = a.iou_score;
     cfg.model.gather.features.intensity = a.extra_features;
     cfg.model.gather.features.lidar = a.extra_features;
     cfg.command = command;

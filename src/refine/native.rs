@@ -180,6 +180,21 @@ pub struct NativeRefiner {
     head: Vec<Dense>,
     cls: Dense,
     reg: Dense,
+    /// The classification target is the IoU quality ([`RefinerConfig::iou_score`]).
+    iou_score: bool,
+}
+
+/// The IoU-quality target of a proposal with 3D IoU `iou` (PV-RCNN's): 0 up to 0.25, 1 from 0.75.
+pub fn iou_quality(iou: f64) -> f32 {
+    ((iou - 0.25) / 0.5).clamp(0.0, 1.0) as f32
+}
+
+/// Binary cross-entropy of the logit `x` toward the soft label `y`, and its derivative in `x`
+/// (σ(x) − y); computed as max(x, 0) − x·y + ln(1 + e^(−|x|)), stable for any `x`.
+fn bce(x: f32, y: f32) -> (f32, f32) {
+    let l = x.max(0.0) - x * y + (-x.abs()).exp().ln_1p();
+    let s = 1.0 / (1.0 + (-x).exp());
+    (l, s - y)
 }
 
 fn bad(what: String) -> RefineError {
@@ -275,6 +290,7 @@ impl NativeRefiner {
             head,
             cls,
             reg,
+            iou_score: cfg.iou_score,
         })
     }
 
@@ -411,11 +427,16 @@ impl NativeRefiner {
         let (mut cls, mut reg, mut uct) = (0f64, 0f64, 0f64);
         for (i, t) in targets.iter().enumerate() {
             let (label, weight) = match t {
+                _ if self.iou_score => (iou_quality(t.iou()), 1.0),
                 Target::Positive { .. } => (1.0, 1.0),
                 Target::Negative { .. } => (0.0, 1.0),
                 Target::Ignored { .. } => (0.0, 0.0),
             };
-            let (l, g) = focal(x[i], label);
+            let (l, g) = if self.iou_score {
+                bce(x[i], label)
+            } else {
+                focal(x[i], label)
+            };
             cls += (l * weight) as f64;
             dx[i] = g * weight * cls_scale;
             let Target::Positive { residuals, .. } = t else {

@@ -56,6 +56,12 @@ pub struct RefinerConfig {
     pub head: Vec<usize>,
     /// The category it refines (its proposals' and ground truth's).
     pub category: String,
+    /// What the classification head learns: `false`, objectness (positive above 3D IoU 0.6,
+    /// negative below 0.45, the paper's focal loss); `true`, the proposal's localisation quality
+    /// (binary cross-entropy toward clamp((IoU − 0.25) / 0.5, 0, 1) on every proposal, as
+    /// PV-RCNN's IoU-guided scoring), so that a box that will not reach IoU 0.7 ranks lower.
+    #[serde(default)]
+    pub iou_score: bool,
 }
 
 impl Default for RefinerConfig {
@@ -66,6 +72,7 @@ impl Default for RefinerConfig {
             proposal_width: 32,
             head: vec![128, 64],
             category: "car".into(),
+            iou_score: false,
         }
     }
 }

@@ -16,9 +16,10 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::model::load_detector;
 use super::RefineError;
 use crate::dataset::{train_validation_split, Dataset};
-use crate::detect::model::{load_detector_with, Voting};
+use crate::detect::model::Voting;
 use crate::detect::{Case, Detection};
 use crate::geometry::Box3d;
 use crate::pipeline::FuseParams;
@@ -129,7 +130,7 @@ pub fn build(cfg: &DatabaseConfig, mut on_shard: impl FnMut(usize, usize)) -> Re
     let detectors = cfg
         .cases
         .iter()
-        .map(|&c| Ok((c, load_detector_with(&cfg.models, c, Voting::Manifest)?)))
+        .map(|&c| Ok((c, load_detector(&cfg.models, c, Voting::Manifest)?)))
         .collect::<Result<Vec<_>, RefineError>>()?;
     let shards = train.len().div_ceil(SHARD);
     for k in 0..shards {

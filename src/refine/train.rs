@@ -299,7 +299,7 @@ pub fn make_batch(
         let iou = truth.iter().map(|g| iou_3d(&p.box3d, g)).fold(0.0f64, f64::max);
         if iou > POSITIVE_IOU {
             pos.push(i);
-        } else if iou < NEGATIVE_IOU {
+        } else if iou < NEGATIVE_IOU || cfg.model.iou_score {
             neg.push(i);
         }
     }
@@ -486,6 +486,11 @@ pub fn train_refiner(
     let mut final_loss = f32::NAN;
     // The native path (the default) or candle's autograd graph (`--slow-autograd`); the native
     // trainer writes its state back into `varmap` and `opt` before every checkpoint.
+    if cfg.slow_autograd && cfg.model.iou_score {
+        return Err(RefineError::BadParameter(
+            "the IoU-quality score is trained by the native trainer only: leave out --slow-autograd".into(),
+        ));
+    }
     let mut native = match cfg.slow_autograd {
         true => None,
         false => Some(NativeRefiner::new(&cfg.model, &varmap, &opt)?),

@@ -120,6 +120,12 @@ impl SynthConfig {
         if !noise_ok || !min_ok || !(0.0..1.0).contains(&m.dropout) {
             return bad("range noise, minimum range or drop-out out of range".into());
         }
+        if !(0.0..=1.0).contains(&m.glass_pass) {
+            return bad(format!(
+                "glass pass probability must be within 0..=1, got {}",
+                m.glass_pass
+            ));
+        }
         let jitter = self.roof.height_jitter_m;
         if !jitter.is_finite() || !(0.0..=1.0).contains(&jitter) {
             return bad(format!("roof height jitter must be within 0..=1 m, got {jitter}"));

@@ -15,7 +15,8 @@
 //! hash of (seed, scene, sample, LiDAR, channel, azimuth), and the columns are cast in parallel
 //! with rayon and gathered in order, so the output is byte-identical for a seed.
 //! Not modelled: multiple returns, beam divergence and partial hits, rolling-shutter motion
-//! distortion within a sweep, transparent glass, rain/fog, sensor saturation and crosstalk.
+//! distortion within a sweep, rain/fog, sensor saturation and crosstalk. Vehicle side glass is
+//! opaque and dark unless [`LidarModel::glass_pass`] lets beams through it (`--glass see-through`).
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -226,6 +227,67 @@ fn to_array(v: &Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
 }
 
+/// The nearest hit after see-through glass: while the hit is a vehicle's side glass and the
+/// beam passes it (probability `pass`, drawn from the ray's own glass stream so that the other
+/// draws of the ray are unchanged), the cast goes on from just behind the glass. A primitive is
+/// only entered from outside, so the beam leaves the cabin unseen and returns from what lies
+/// behind it (the lower body's top, another object) or, failing that, from the ground hit found
+/// before (`ground_t`: its distance, the cast's limit). At most four panes are crossed.
+#[allow(clippy::too_many_arguments)]
+fn through_glass(
+    grid: &Grid,
+    o: &[f64; 3],
+    d: &[f64; 3],
+    mut best: Option<(f64, [f64; 3], Material, Hit)>,
+    ground_limit: f64,
+    pass: f64,
+    key_base: [u64; 3],
+    lidar: usize,
+    ring: usize,
+    azimuth: usize,
+) -> Option<(f64, [f64; 3], Material, Hit)> {
+    let ground = match best {
+        Some((t, n, m, Hit::Ground)) => Some((t, n, m, Hit::Ground)),
+        _ => None,
+    };
+    let mut stream: Option<RayStream> = None;
+    for _ in 0..4 {
+        let Some((t, normal, material, Hit::Actor(_))) = best else {
+            return best;
+        };
+        if material.reflectivity(normal[2]) != super::shapes::materials::GLASS {
+            return best;
+        }
+        let rs = stream.get_or_insert_with(|| {
+            RayStream::new(hash_key(&[
+                key_base[0],
+                key_base[1],
+                key_base[2],
+                lidar as u64,
+                ring as u64,
+                azimuth as u64,
+                GLASS_STREAM,
+            ]))
+        });
+        if rs.uniform() >= pass {
+            return best;
+        }
+        let t0 = t + 1e-3;
+        let o2 = [o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2]];
+        best = match grid.cast(&o2, d, ground_limit - t0) {
+            Some((tp, pi, n)) => {
+                let p = &grid.prims[pi];
+                Some((t0 + tp, n, p.material, p.owner))
+            }
+            None => ground,
+        };
+    }
+    best
+}
+
+/// Key word of the see-through-glass draws (kept apart from a ray's other draws).
+const GLASS_STREAM: u64 = 0x6C61_7373;
+
 /// Casts every ray of the three LiDARs at key frame `k` of a scene.
 pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel, seed: u64) -> SampleScan {
     let street = town.street_of(scene);
@@ -313,6 +375,20 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
                     let p = &grid.prims[pi];
                     best = Some((tp, n, p.material, p.owner));
                 }
+                if model.glass_pass > 0.0 {
+                    best = through_glass(
+                        &grid,
+                        o_w,
+                        &dw,
+                        best,
+                        limit,
+                        model.glass_pass,
+                        key_base,
+                        l,
+                        ring,
+                        j,
+                    );
+                }
                 let Some((range, normal, material, hit)) = best else {
                     continue;
                 };
@@ -364,4 +440,61 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
         }
     }
     SampleScan { lidars }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::shapes::{materials, Shape};
+
+    /// A glass pane (a car's side glass: steep face of reflectivity GLASS) 10 m along +x and a
+    /// painted wall 20 m along +x, both owned by actors; and where the beams along +x end.
+    fn pane_and_wall(pass: f64, rays: usize) -> Vec<(f64, Hit)> {
+        let glass = Primitive::new(
+            [10.0, 0.0, 0.0],
+            0.0,
+            Shape::Cuboid {
+                half: [0.5, 2.0, 2.0],
+            },
+            Material::two_tone(0.4, materials::GLASS),
+            Hit::Actor(0),
+        );
+        let wall = Primitive::new(
+            [20.0, 0.0, 0.0],
+            0.0,
+            Shape::Cuboid {
+                half: [0.5, 2.0, 2.0],
+            },
+            Material::uniform(0.4),
+            Hit::Actor(1),
+        );
+        let grid = Grid::build(vec![glass, wall], [10.0, 0.0], 16.0, 4.0);
+        let (o, d) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+        (0..rays)
+            .map(|j| {
+                let first = grid
+                    .cast(&o, &d, 100.0)
+                    .map(|(t, pi, n)| (t, n, grid.prims[pi].material, grid.prims[pi].owner));
+                let (t, _, _, hit) = through_glass(&grid, &o, &d, first, 100.0, pass, [7, 0, 0], 0, 0, j)
+                    .expect("the wall is always there");
+                (t, hit)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn see_through_glass_passes_the_drawn_share_of_beams_and_reproduces() {
+        let opaque = pane_and_wall(0.0, 200);
+        assert!(opaque
+            .iter()
+            .all(|&(t, h)| h == Hit::Actor(0) && (t - 9.5).abs() < 1e-9));
+        let clear = pane_and_wall(1.0, 200);
+        assert!(clear
+            .iter()
+            .all(|&(t, h)| h == Hit::Actor(1) && (t - 19.5).abs() < 1e-6));
+        let half = pane_and_wall(0.5, 2000);
+        let passed = half.iter().filter(|&&(_, h)| h == Hit::Actor(1)).count();
+        assert!((850..1150).contains(&passed), "{passed} of 2000 passed at 0.5");
+        assert_eq!(half, pane_and_wall(0.5, 2000));
+    }
 }

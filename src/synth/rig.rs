@@ -123,6 +123,11 @@ pub struct LidarModel {
     /// `Some(v)`: write this intensity for every point (the real Lyft files hold a constant 100);
     /// `None`: intensity from material reflectivity and incidence angle, 0–255.
     pub constant_intensity: Option<f32>,
+    /// Probability that a beam which meets a car's side glass passes through it (0: glass is an
+    /// opaque, dark surface, as before issue 29's `--glass see-through`). A passing beam goes on
+    /// through the cabin and returns from what lies behind: the lower body's top (the seats and
+    /// the far door at belt height), another object, or the ground.
+    pub glass_pass: f64,
 }
 
 impl Default for LidarModel {
@@ -136,6 +141,7 @@ impl Default for LidarModel {
             reference_range_m: 600.0,
             dropout: 0.01,
             constant_intensity: None,
+            glass_pass: 0.0,
         }
     }
 }

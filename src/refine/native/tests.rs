@@ -353,3 +353,30 @@ fn bad_batches_are_errors() {
     let e = NativeRefiner::new(&other, &vm, &opt).unwrap_err();
     assert!(e.to_string().contains("point.2.lin"), "{e}");
 }
+
+#[test]
+fn the_iou_quality_target_and_its_cross_entropy() {
+    assert_eq!(iou_quality(0.1), 0.0);
+    assert_eq!(iou_quality(0.25), 0.0);
+    assert!((iou_quality(0.5) - 0.5).abs() < 1e-6);
+    assert_eq!(iou_quality(0.8), 1.0);
+    for &y in &[0.0f32, 0.3, 1.0] {
+        for &x in &[-30.0f32, -2.0, -0.1, 0.0, 0.7, 3.0, 30.0] {
+            let (l, g) = bce(x, y);
+            let s = 1.0 / (1.0 + (-f64::from(x)).exp());
+            let naive =
+                -(f64::from(y) * s.max(1e-300).ln() + (1.0 - f64::from(y)) * (1.0 - s).max(1e-300).ln());
+            assert!(
+                l.is_finite() && (f64::from(l) - naive).abs() < 1e-4 * naive.max(1.0),
+                "{x} {y}: {l} vs {naive}"
+            );
+            let h = 1e-2f32;
+            let fd = (f64::from(bce(x + h, y).0) - f64::from(bce(x - h, y).0)) / (2.0 * f64::from(h));
+            assert!((f64::from(g) - fd).abs() < 1e-3, "{x} {y}: {g} vs {fd}");
+        }
+    }
+    // The loss is smallest where σ(x) equals the soft label.
+    let at = |x: f32| bce(x, 0.3).0;
+    let best = (0.3f32 / 0.7).ln();
+    assert!(at(best) < at(best - 0.5) && at(best) < at(best + 0.5));
+}

@@ -231,3 +231,32 @@ fn bad_settings_and_a_missing_database_are_errors() {
     assert!(e.contains("shard-00000.json"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_database_takes_the_certain_points_cases_and_refuses_refined_ones() {
+    let dir = std::env::temp_dir().join(format!("mlod-refine-db-drop-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let cfg = |cases: Vec<Case>| DatabaseConfig {
+        dataset: sample_data(),
+        models: models(),
+        out: dir.join("db"),
+        cases,
+        draws: 1,
+        seed: 3,
+        zero_share: 0.0,
+        max_samples: 1,
+    };
+    assert_eq!(
+        build(&cfg(vec![Case::InputDrop, Case::ResultDrop]), |_, _| {}).unwrap(),
+        2
+    );
+    let entries = load(&dir.join("db")).unwrap();
+    assert_eq!(
+        entries.iter().map(|e| e.case).collect::<Vec<_>>(),
+        [Case::InputDrop, Case::ResultDrop]
+    );
+    assert!(entries.iter().all(|e| e.alpha > 0.0));
+    let err = build(&cfg(vec![Case::MlodIrDrop]), |_, _| {}).unwrap_err();
+    assert!(err.to_string().contains("stage-1"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
