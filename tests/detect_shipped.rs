@@ -29,13 +29,16 @@ struct ModelSet {
     /// The shipped set: the only one whose fixtures `MLOD_BLESS` rewrites, and the only one
     /// with fixtures for the cases beyond the paper.
     shipped: bool,
+    /// At least this many (case, frame) pairs are checked.
+    min_pairs: usize,
 }
 
 /// The shipped set (`assets/models`, fixtures in `tests/fixtures/detections`) and the older set
 /// kept beside it (`assets/models/v2`, its fixtures in `detections/v2`, committed when v2 shipped
 /// and re-blessed only when sample_data/ changed: it still loads and detects bit for bit with
-/// `--models`).
-fn model_sets() -> [ModelSet; 2] {
+/// `--models`), and the see-through-glass LiDAR-Top candidate (`assets/models/v5-glass`, issue
+/// 29; fixtures in `detections/v5-glass`).
+fn model_sets() -> [ModelSet; 3] {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
     let root = default_models_dir();
     [
@@ -43,11 +46,19 @@ fn model_sets() -> [ModelSet; 2] {
             models: root.clone(),
             fixtures: fixtures.clone(),
             shipped: true,
+            min_pairs: 12,
         },
         ModelSet {
             models: root.join("v2"),
             fixtures: fixtures.join("v2"),
             shipped: false,
+            min_pairs: 12,
+        },
+        ModelSet {
+            models: root.join("v5-glass"),
+            fixtures: fixtures.join("v5-glass"),
+            shipped: false,
+            min_pairs: 2,
         },
     ]
 }
@@ -103,7 +114,11 @@ fn shipped_weights_reproduce_committed_detections() {
             }
         }
         eprintln!("{}: checked {checked} (case, frame) pairs", models.display());
-        assert!(checked >= 12, "{}: only {checked} pairs", models.display());
+        assert!(
+            checked >= set.min_pairs,
+            "{}: only {checked} pairs",
+            models.display()
+        );
     }
 }
 
@@ -156,6 +171,31 @@ fn v3_candidates_load_and_record_where_they_started() {
         assert_eq!(from.sha256, init.sha256, "{case}");
         assert!(from.command.contains("train stage1") && from.steps > 0, "{case}");
     }
+}
+
+#[test]
+fn the_see_through_glass_candidate_records_its_recipe() {
+    // assets/models/v5-glass (issue 29): LiDAR-Top trained by v4's recipe on the simulator with
+    // see-through vehicle glass (`mlod synth ... --glass see-through`, docs/realism.md).
+    let dir = default_models_dir().join("v5-glass");
+    let m = Manifest::load(&dir).expect("the candidate's manifest");
+    assert_eq!(m.models.keys().copied().collect::<Vec<_>>(), [Case::Top]);
+    let entry = &m.models[&Case::Top];
+    // Loading checks the file against the manifest's sha256.
+    load_detector(&dir, Case::Top).unwrap();
+    for part in [
+        "mlod train stage1 --case top",
+        "--dataset data/v5g/train",
+        "--transfer-aug",
+        "--no-intensity",
+        "--seed 4",
+    ] {
+        assert!(entry.command.contains(part), "{}", entry.command);
+    }
+    assert_eq!(entry.steps, 10_000);
+    assert!(entry.test_ap["moderate_ap3d_0.7"] > 85.0, "{:?}", entry.test_ap);
+    assert!(m.vote.is_some() && m.training_stats.is_some());
+    assert!(!mlod::detect::weights::models_read_intensity(&dir));
 }
 
 #[test]
