@@ -22,6 +22,13 @@ fn check_fixture(path: &Path, json: &str, bless: bool, what: &str) {
     assert!(committed == json, "{what} differ from {}", path.display());
 }
 
+/// `command` (a manifest's record of how weights were made) holds every one of `parts`.
+fn assert_command_has(command: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(command.contains(part), "{part:?} not in {command}");
+    }
+}
+
 /// A models folder and the fixtures its detections are checked against.
 struct ModelSet {
     models: std::path::PathBuf,
@@ -183,15 +190,16 @@ fn the_see_through_glass_candidate_records_its_recipe() {
     let entry = &m.models[&Case::Top];
     // Loading checks the file against the manifest's sha256.
     load_detector(&dir, Case::Top).unwrap();
-    for part in [
-        "mlod train stage1 --case top",
-        "--dataset data/v5g/train",
-        "--transfer-aug",
-        "--no-intensity",
-        "--seed 4",
-    ] {
-        assert!(entry.command.contains(part), "{}", entry.command);
-    }
+    assert_command_has(
+        &entry.command,
+        &[
+            "mlod train stage1 --case top",
+            "--dataset data/v5g/train",
+            "--transfer-aug",
+            "--no-intensity",
+            "--seed 4",
+        ],
+    );
     assert_eq!(entry.steps, 10_000);
     assert!(entry.test_ap["moderate_ap3d_0.7"] > 85.0, "{:?}", entry.test_ap);
     assert!(m.vote.is_some() && m.training_stats.is_some());
@@ -210,14 +218,15 @@ fn shipped_models_carry_the_v4_transfer_recipe() {
     for (case, entry) in &m.models {
         // Loading checks the file against the manifest's sha256.
         load_detector(&dir, *case).unwrap_or_else(|e| panic!("{case}: {e}"));
-        for part in [
-            "mlod train stage1",
-            "--dataset data/v4/train",
-            "--transfer-aug",
-            "--no-intensity",
-        ] {
-            assert!(entry.command.contains(part), "{case}: {}", entry.command);
-        }
+        assert_command_has(
+            &entry.command,
+            &[
+                "mlod train stage1",
+                "--dataset data/v4/train",
+                "--transfer-aug",
+                "--no-intensity",
+            ],
+        );
         if case.trains_under_drift() {
             let init = entry.init.as_ref().expect("a warm start");
             assert_eq!(init.file, "input.safetensors", "{case}");
@@ -312,30 +321,81 @@ fn shipped_refiner_reproduces_committed_refinements() {
             .chain(beyond.iter().copied())
             .filter(|&c| c.is_mlod() && has_weights(&manifest, c));
         for case in cases {
-            let m = mlod::refine::load_mlod(models, case, Default::default()).unwrap();
-            for token in &tokens {
-                let run = m.run(&ds.frame(token).unwrap(), &params).unwrap();
-                let rows: Vec<serde_json::Value> = run
-                    .refined
-                    .iter()
-                    .map(|r| {
-                        serde_json::json!({
-                            "box": r.detection,
-                            "refined_score": r.refined_score,
-                            "proposal": r.proposal,
-                            "proposal_box": run.proposals[r.proposal],
-                            "active": r.active,
-                            "unrefined": r.unrefined,
-                        })
-                    })
-                    .collect();
-                let json = serde_json::to_string_pretty(&rows).unwrap() + "\n";
-                let path = fixtures.join(format!("{case}-a0.04-{}.json", &token[..12]));
-                check_fixture(&path, &json, bless, &format!("{case} on {token}: refinements"));
-                // Every refinement points at a proposal of its run.
-                assert!(run.refined.iter().all(|r| r.proposal < run.proposals.len()));
-            }
+            check_refinements(models, fixtures, case, &ds, &tokens, &params, bless);
         }
+    }
+}
+
+/// `case` of the models folder on each of `tokens` under `params` reproduces the committed
+/// refinements in `fixtures` (`{case}-a0.04-{token}.json`) byte for byte.
+fn check_refinements(
+    models: &Path,
+    fixtures: &Path,
+    case: Case,
+    ds: &Dataset,
+    tokens: &[String],
+    params: &FuseParams,
+    bless: bool,
+) {
+    let m = mlod::refine::load_mlod(models, case, Default::default()).unwrap();
+    for token in tokens {
+        let run = m.run(&ds.frame(token).unwrap(), params).unwrap();
+        let rows: Vec<serde_json::Value> = run
+            .refined
+            .iter()
+            .map(|r| {
+                serde_json::json!({
+                    "box": r.detection,
+                    "refined_score": r.refined_score,
+                    "proposal": r.proposal,
+                    "proposal_box": run.proposals[r.proposal],
+                    "active": r.active,
+                    "unrefined": r.unrefined,
+                })
+            })
+            .collect();
+        let json = serde_json::to_string_pretty(&rows).unwrap() + "\n";
+        let path = fixtures.join(format!("{case}-a0.04-{}.json", &token[..12]));
+        check_fixture(&path, &json, bless, &format!("{case} on {token}: refinements"));
+        // Every refinement points at a proposal of its run.
+        assert!(run.refined.iter().all(|r| r.proposal < run.proposals.len()));
+    }
+}
+
+#[test]
+fn the_iou_scoring_refiner_candidate_records_its_recipe_and_reproduces() {
+    // assets/models/iou-refiner (issue 32): the shipped stage-1 models with a refiner whose
+    // classification head learned the IoU quality (`mlod train refiner ... --iou-score`) on a
+    // database with the certain-points cases' proposals, its decoding chosen on validation.
+    let dir = default_models_dir().join("iou-refiner");
+    let m = Manifest::load(&dir).expect("the candidate's manifest");
+    let shipped = Manifest::load(&default_models_dir()).unwrap();
+    for (case, entry) in &shipped.models {
+        assert_eq!(m.models[case].sha256, entry.sha256, "{case}: the shipped stage 1");
+    }
+    let r = m.refiner.as_ref().expect("its refiner");
+    assert_command_has(
+        &r.command,
+        &[
+            "--iou-score",
+            "--dataset data/v4/train",
+            "input-drop,result-drop",
+            "--steps 18000",
+        ],
+    );
+    let refiner = mlod::refine::Refiner::load_shipped(&dir).unwrap();
+    assert!(refiner.config.iou_score && refiner.config.gather.features.trace);
+    assert_eq!(m.refine.as_ref().map(|t| t.score.as_str()), Some("refined"));
+    let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+    let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).unwrap(),
+        ..Default::default()
+    };
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections/iou-refiner");
+    let bless = std::env::var("MLOD_BLESS").is_ok_and(|v| v == "all");
+    for case in [Case::MlodI, Case::MlodIrDrop] {
+        check_refinements(&dir, &fixtures, case, &ds, &tokens, &params, bless);
     }
 }
 
