@@ -1524,3 +1524,46 @@ fn stats_updates_a_manifest_and_detect_and_eval_name_what_differs() {
         "sample_data is like the training data: {err}"
     );
 }
+
+#[test]
+fn synth_glass_see_through_changes_the_sweeps_and_refuses_unknown_values() {
+    let dir = std::env::temp_dir().join(format!("mlod-cli-glass-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let make = |name: &str, glass: &str| {
+        let out = dir.join(name);
+        let run = mlod(&[
+            "synth",
+            "--out",
+            out.to_str().expect("utf-8"),
+            "--samples-per-scene",
+            "1",
+            "--seed",
+            "5",
+            "--glass",
+            glass,
+        ]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let lidar = out.join("lidar");
+        let mut bins: Vec<_> = std::fs::read_dir(&lidar)
+            .expect("lidar/")
+            .map(|e| e.expect("entry").path())
+            .collect();
+        bins.sort();
+        bins.iter()
+            .map(|p| std::fs::read(p).expect("bin"))
+            .collect::<Vec<_>>()
+    };
+    let (opaque, clear) = (make("opaque", "opaque"), make("clear", "see-through"));
+    assert_eq!(opaque.len(), clear.len());
+    assert_ne!(opaque, clear, "see-through glass changed no sweep");
+    let bad = mlod(&[
+        "synth",
+        "--out",
+        dir.join("bad").to_str().expect("utf-8"),
+        "--glass",
+        "foggy",
+    ]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--glass"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
