@@ -13,6 +13,11 @@
 //!   the points are certain.
 //!
 //! Each term is divided by the number of positives (at least 1), as SECOND normalises.
+//!
+//! Beyond the paper (`mlod train refiner --iou-score`, [`super::net::RefinerConfig::iou_score`]):
+//! L_cls becomes the binary cross-entropy toward each proposal's IoU quality, clamp((IoU − 0.25) /
+//! 0.5, 0, 1), on every proposal of the batch; the native trainer computes it
+//! ([`super::native::iou_quality`]), this candle graph does not.
 
 use candle_core::{Device, Tensor, D};
 

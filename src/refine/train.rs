@@ -452,6 +452,11 @@ pub fn train_refiner(
             cfg.lr
         )));
     }
+    if cfg.slow_autograd && cfg.model.iou_score {
+        return Err(RefineError::BadParameter(
+            "the IoU-quality score is trained by the native trainer only: leave out --slow-autograd".into(),
+        ));
+    }
     let dataset = Dataset::open(&cfg.dataset)?;
     let entries = load(&cfg.proposals)?;
     if entries.is_empty() {
@@ -486,11 +491,6 @@ pub fn train_refiner(
     let mut final_loss = f32::NAN;
     // The native path (the default) or candle's autograd graph (`--slow-autograd`); the native
     // trainer writes its state back into `varmap` and `opt` before every checkpoint.
-    if cfg.slow_autograd && cfg.model.iou_score {
-        return Err(RefineError::BadParameter(
-            "the IoU-quality score is trained by the native trainer only: leave out --slow-autograd".into(),
-        ));
-    }
     let mut native = match cfg.slow_autograd {
         true => None,
         false => Some(NativeRefiner::new(&cfg.model, &varmap, &opt)?),

@@ -260,3 +260,20 @@ fn the_database_takes_the_certain_points_cases_and_refuses_refined_ones() {
     assert!(err.to_string().contains("stage-1"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_iou_score_is_refused_on_the_slow_autograd_path_before_any_work() {
+    let mut cfg = RefineTrainConfig::new(
+        PathBuf::from("/nonexistent/dataset"),
+        PathBuf::from("/nonexistent/db"),
+        PathBuf::from("/nonexistent/refiner.safetensors"),
+    );
+    cfg.model.iou_score = true;
+    cfg.slow_autograd = true;
+    let err = train_refiner(&cfg, |_| {}).unwrap_err();
+    assert!(err.to_string().contains("native trainer only"), "{err}");
+    // On the native path the same configuration gets as far as the missing dataset.
+    cfg.slow_autograd = false;
+    let err = train_refiner(&cfg, |_| {}).unwrap_err();
+    assert!(!err.to_string().contains("native trainer only"), "{err}");
+}
