@@ -34,7 +34,7 @@ pub struct SynthArgs {
     #[arg(long, default_value = "reflectance", value_parser = ["reflectance", "lyft"])]
     intensity: String,
     /// Vehicle side glass: `opaque` (a dark surface, as up to v4) or `see-through` (80 % of the
-    /// beams pass it and return from the cabin's lower body, what lies behind, or the ground).
+    /// beams pass it and return from the cabin's lower body or what stands behind the car).
     #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through"])]
     glass: String,
     /// Show a progress bar.

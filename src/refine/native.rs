@@ -426,16 +426,11 @@ impl NativeRefiner {
         dr.fill(0.0);
         let (mut cls, mut reg, mut uct) = (0f64, 0f64, 0f64);
         for (i, t) in targets.iter().enumerate() {
-            let (label, weight) = match t {
-                _ if self.iou_score => (iou_quality(t.iou()), 1.0),
-                Target::Positive { .. } => (1.0, 1.0),
-                Target::Negative { .. } => (0.0, 1.0),
-                Target::Ignored { .. } => (0.0, 0.0),
-            };
-            let (l, g) = if self.iou_score {
-                bce(x[i], label)
-            } else {
-                focal(x[i], label)
+            let ((l, g), weight) = match t {
+                _ if self.iou_score => (bce(x[i], iou_quality(t.iou())), 1.0),
+                Target::Positive { .. } => (focal(x[i], 1.0), 1.0),
+                Target::Negative { .. } => (focal(x[i], 0.0), 1.0),
+                Target::Ignored { .. } => (focal(x[i], 0.0), 0.0),
             };
             cls += (l * weight) as f64;
             dx[i] = g * weight * cls_scale;

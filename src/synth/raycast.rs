@@ -228,28 +228,23 @@ fn to_array(v: &Vector3<f64>) -> [f64; 3] {
 }
 
 /// The nearest hit after see-through glass: while the hit is a vehicle's side glass and the
-/// beam passes it (probability `pass`, drawn from the ray's own glass stream so that the other
-/// draws of the ray are unchanged), the cast goes on from just behind the glass. A primitive is
-/// only entered from outside, so the beam leaves the cabin unseen and returns from what lies
-/// behind it (the lower body's top, another object) or, failing that, from the ground hit found
-/// before (`ground_t`: its distance, the cast's limit). At most four panes are crossed.
-#[allow(clippy::too_many_arguments)]
+/// beam passes it (probability `pass`, drawn from the ray's own glass stream, keyed by the ray's
+/// key words `ray` and [`GLASS_STREAM`], so that the ray's other draws are unchanged), the cast
+/// goes on from just behind the glass up to `limit` (the ground hit's distance, else the maximum
+/// range). A primitive is only entered from outside, so the beam leaves the cabin unseen and
+/// returns from what lies behind it (the lower body's top, another object). A passing beam that
+/// meets nothing before `limit` returns **nothing**, not the ground hit behind the car: known,
+/// and kept so that `--glass see-through` data (and the v5-glass candidate trained on it)
+/// reproduce. At most four panes are crossed.
 fn through_glass(
     grid: &Grid,
     o: &[f64; 3],
     d: &[f64; 3],
     mut best: Option<(f64, [f64; 3], Material, Hit)>,
-    ground_limit: f64,
+    limit: f64,
     pass: f64,
-    key_base: [u64; 3],
-    lidar: usize,
-    ring: usize,
-    azimuth: usize,
+    ray: &[u64; 6],
 ) -> Option<(f64, [f64; 3], Material, Hit)> {
-    let ground = match best {
-        Some((t, n, m, Hit::Ground)) => Some((t, n, m, Hit::Ground)),
-        _ => None,
-    };
     let mut stream: Option<RayStream> = None;
     for _ in 0..4 {
         let Some((t, normal, material, Hit::Actor(_))) = best else {
@@ -259,28 +254,18 @@ fn through_glass(
             return best;
         }
         let rs = stream.get_or_insert_with(|| {
-            RayStream::new(hash_key(&[
-                key_base[0],
-                key_base[1],
-                key_base[2],
-                lidar as u64,
-                ring as u64,
-                azimuth as u64,
-                GLASS_STREAM,
-            ]))
+            let [a, b, c, l, r, j] = *ray;
+            RayStream::new(hash_key(&[a, b, c, l, r, j, GLASS_STREAM]))
         });
         if rs.uniform() >= pass {
             return best;
         }
         let t0 = t + 1e-3;
         let o2 = [o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2]];
-        best = match grid.cast(&o2, d, ground_limit - t0) {
-            Some((tp, pi, n)) => {
-                let p = &grid.prims[pi];
-                Some((t0 + tp, n, p.material, p.owner))
-            }
-            None => ground,
-        };
+        best = grid.cast(&o2, d, limit - t0).map(|(tp, pi, n)| {
+            let p = &grid.prims[pi];
+            (t0 + tp, n, p.material, p.owner)
+        });
     }
     best
 }
@@ -375,19 +360,17 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
                     let p = &grid.prims[pi];
                     best = Some((tp, n, p.material, p.owner));
                 }
+                // Every random draw of this ray is keyed by these words.
+                let ray = [
+                    key_base[0],
+                    key_base[1],
+                    key_base[2],
+                    l as u64,
+                    ring as u64,
+                    j as u64,
+                ];
                 if model.glass_pass > 0.0 {
-                    best = through_glass(
-                        &grid,
-                        o_w,
-                        &dw,
-                        best,
-                        limit,
-                        model.glass_pass,
-                        key_base,
-                        l,
-                        ring,
-                        j,
-                    );
+                    best = through_glass(&grid, o_w, &dw, best, limit, model.glass_pass, &ray);
                 }
                 let Some((range, normal, material, hit)) = best else {
                     continue;
@@ -395,14 +378,7 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
                 if range < model.min_range_m {
                     continue;
                 }
-                let mut rs = RayStream::new(hash_key(&[
-                    key_base[0],
-                    key_base[1],
-                    key_base[2],
-                    l as u64,
-                    ring as u64,
-                    j as u64,
-                ]));
+                let mut rs = RayStream::new(hash_key(&ray));
                 if rs.uniform() < model.dropout {
                     continue;
                 }
@@ -475,8 +451,9 @@ mod tests {
                 let first = grid
                     .cast(&o, &d, 100.0)
                     .map(|(t, pi, n)| (t, n, grid.prims[pi].material, grid.prims[pi].owner));
-                let (t, _, _, hit) = through_glass(&grid, &o, &d, first, 100.0, pass, [7, 0, 0], 0, 0, j)
-                    .expect("the wall is always there");
+                let (t, _, _, hit) =
+                    through_glass(&grid, &o, &d, first, 100.0, pass, &[7, 0, 0, 0, 0, j as u64])
+                        .expect("the wall is always there");
                 (t, hit)
             })
             .collect()

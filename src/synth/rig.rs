@@ -126,7 +126,8 @@ pub struct LidarModel {
     /// Probability that a beam which meets a car's side glass passes through it (0: glass is an
     /// opaque, dark surface, as before issue 29's `--glass see-through`). A passing beam goes on
     /// through the cabin and returns from what lies behind: the lower body's top (the seats and
-    /// the far door at belt height), another object, or the ground.
+    /// the far door at belt height) or another object; one that meets nothing else returns nothing
+    /// (see `raycast::through_glass`).
     pub glass_pass: f64,
 }
 
