@@ -183,7 +183,7 @@ fn v3_candidates_load_and_record_where_they_started() {
 #[test]
 fn the_see_through_glass_candidate_records_its_recipe() {
     // assets/models/v5-glass (issue 29): LiDAR-Top trained by v4's recipe on the simulator with
-    // see-through vehicle glass (`mlod synth ... --glass see-through`, docs/realism.md).
+    // see-through vehicle glass (`mlod synth ... --glass see-through-no-ground`, docs/realism.md).
     let dir = default_models_dir().join("v5-glass");
     let m = Manifest::load(&dir).expect("the candidate's manifest");
     assert_eq!(m.models.keys().copied().collect::<Vec<_>>(), [Case::Top]);

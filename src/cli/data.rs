@@ -34,8 +34,10 @@ pub struct SynthArgs {
     #[arg(long, default_value = "reflectance", value_parser = ["reflectance", "lyft"])]
     intensity: String,
     /// Vehicle side glass: `opaque` (a dark surface, as up to v4) or `see-through` (80 % of the
-    /// beams pass it and return from the cabin's lower body or what stands behind the car).
-    #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through"])]
+    /// beams pass it and return from the cabin's lower body, what stands behind the car or the
+    /// ground); `see-through-no-ground` reproduces the first see-through data (the v5-glass
+    /// candidate's), where a beam through the glass that meets nothing else returned nothing.
+    #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through", "see-through-no-ground"])]
     glass: String,
     /// Show a progress bar.
     #[arg(long)]
@@ -91,11 +93,12 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         },
         lidar: mlod::synth::LidarModel {
             constant_intensity: (args.intensity == "lyft").then_some(100.0),
-            glass_pass: if args.glass == "see-through" {
+            glass_pass: if args.glass.starts_with("see-through") {
                 GLASS_PASS
             } else {
                 0.0
             },
+            glass_ground: args.glass != "see-through-no-ground",
             ..Default::default()
         },
         ..Default::default()

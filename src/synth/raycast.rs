@@ -228,23 +228,26 @@ fn to_array(v: &Vector3<f64>) -> [f64; 3] {
 }
 
 /// The nearest hit after see-through glass: while the hit is a vehicle's side glass and the
-/// beam passes it (probability `pass`, drawn from the ray's own glass stream, keyed by the ray's
+/// beam passes it (probability `model.glass_pass`, drawn from the ray's own glass stream, keyed by the ray's
 /// key words `ray` and [`GLASS_STREAM`], so that the ray's other draws are unchanged), the cast
-/// goes on from just behind the glass up to `limit` (the ground hit's distance, else the maximum
-/// range). A primitive is only entered from outside, so the beam leaves the cabin unseen and
-/// returns from what lies behind it (the lower body's top, another object). A passing beam that
-/// meets nothing before `limit` returns **nothing**, not the ground hit behind the car: known,
-/// and kept so that `--glass see-through` data (and the v5-glass candidate trained on it)
-/// reproduce. At most four panes are crossed.
+/// goes on from just behind the glass up to the `ground` hit (else the maximum range). A
+/// primitive is only entered from outside, so the beam leaves the cabin unseen and returns from
+/// what lies behind it (the lower body's top, another object) or, when it meets nothing else,
+/// from the ground behind the car. Unless `model.glass_ground` is set such a beam returns
+/// nothing: the first see-through data (`--glass see-through-no-ground`, which the v5-glass
+/// candidate was trained on) had that bug, and it is kept so that they reproduce. At most four
+/// panes are crossed.
 fn through_glass(
     grid: &Grid,
     o: &[f64; 3],
     d: &[f64; 3],
     mut best: Option<(f64, [f64; 3], Material, Hit)>,
-    limit: f64,
-    pass: f64,
+    ground: Option<(f64, [f64; 3], Material, Hit)>,
+    model: &LidarModel,
     ray: &[u64; 6],
 ) -> Option<(f64, [f64; 3], Material, Hit)> {
+    let limit = ground.map_or(model.max_range_m, |g| g.0);
+    let behind = if model.glass_ground { ground } else { None };
     let mut stream: Option<RayStream> = None;
     for _ in 0..4 {
         let Some((t, normal, material, Hit::Actor(_))) = best else {
@@ -257,15 +260,18 @@ fn through_glass(
             let [a, b, c, l, r, j] = *ray;
             RayStream::new(hash_key(&[a, b, c, l, r, j, GLASS_STREAM]))
         });
-        if rs.uniform() >= pass {
+        if rs.uniform() >= model.glass_pass {
             return best;
         }
         let t0 = t + 1e-3;
         let o2 = [o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2]];
-        best = grid.cast(&o2, d, limit - t0).map(|(tp, pi, n)| {
-            let p = &grid.prims[pi];
-            (t0 + tp, n, p.material, p.owner)
-        });
+        best = grid
+            .cast(&o2, d, limit - t0)
+            .map(|(tp, pi, n)| {
+                let p = &grid.prims[pi];
+                (t0 + tp, n, p.material, p.owner)
+            })
+            .or(behind);
     }
     best
 }
@@ -350,12 +356,11 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
                     continue;
                 }
                 let dw = to_array(&(r_ws * ds));
-                let mut best: Option<(f64, [f64; 3], Material, Hit)> = None;
-                let mut limit = model.max_range_m;
-                if let Some((tg, n, m)) = ground.intersect(o_w, &dw, limit) {
-                    best = Some((tg, n, m, Hit::Ground));
-                    limit = tg;
-                }
+                let ground_hit = ground
+                    .intersect(o_w, &dw, model.max_range_m)
+                    .map(|(tg, n, m)| (tg, n, m, Hit::Ground));
+                let limit = ground_hit.map_or(model.max_range_m, |g| g.0);
+                let mut best = ground_hit;
                 if let Some((tp, pi, n)) = grid.cast(o_w, &dw, limit) {
                     let p = &grid.prims[pi];
                     best = Some((tp, n, p.material, p.owner));
@@ -370,7 +375,7 @@ pub fn scan_sample(town: &Town, scene: &SceneWorld, k: usize, model: &LidarModel
                     j as u64,
                 ];
                 if model.glass_pass > 0.0 {
-                    best = through_glass(&grid, o_w, &dw, best, limit, model.glass_pass, &ray);
+                    best = through_glass(&grid, o_w, &dw, best, ground_hit, model, &ray);
                 }
                 let Some((range, normal, material, hit)) = best else {
                     continue;
@@ -423,55 +428,76 @@ mod tests {
     use super::*;
     use crate::synth::shapes::{materials, Shape};
 
-    /// A glass pane (a car's side glass: steep face of reflectivity GLASS) 10 m along +x and a
-    /// painted wall 20 m along +x, both owned by actors; and where the beams along +x end.
-    fn pane_and_wall(pass: f64, rays: usize) -> Vec<(f64, Hit)> {
-        let glass = Primitive::new(
-            [10.0, 0.0, 0.0],
-            0.0,
-            Shape::Cuboid {
-                half: [0.5, 2.0, 2.0],
-            },
-            Material::two_tone(0.4, materials::GLASS),
-            Hit::Actor(0),
-        );
-        let wall = Primitive::new(
-            [20.0, 0.0, 0.0],
-            0.0,
-            Shape::Cuboid {
-                half: [0.5, 2.0, 2.0],
-            },
-            Material::uniform(0.4),
-            Hit::Actor(1),
-        );
-        let grid = Grid::build(vec![glass, wall], [10.0, 0.0], 16.0, 4.0);
+    /// A glass pane (a car's side glass: steep face of reflectivity GLASS) 10 m along +x and,
+    /// with `wall`, a painted wall 20 m along +x, both owned by actors; a ground hit at 30 m;
+    /// and where the beams along +x end (`None`: no return).
+    fn pane_and_wall(pass: f64, rays: usize, wall: bool, glass_ground: bool) -> Vec<Option<(f64, Hit)>> {
+        let cuboid = |x: f64, material, owner| {
+            Primitive::new(
+                [x, 0.0, 0.0],
+                0.0,
+                Shape::Cuboid {
+                    half: [0.5, 2.0, 2.0],
+                },
+                material,
+                Hit::Actor(owner),
+            )
+        };
+        let mut prims = vec![cuboid(10.0, Material::two_tone(0.4, materials::GLASS), 0)];
+        if wall {
+            prims.push(cuboid(20.0, Material::uniform(0.4), 1));
+        }
+        let grid = Grid::build(prims, [10.0, 0.0], 16.0, 4.0);
         let (o, d) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+        let ground = Some((30.0, [0.0, 0.0, 1.0], Material::uniform(0.2), Hit::Ground));
+        let model = LidarModel {
+            glass_pass: pass,
+            glass_ground,
+            ..LidarModel::default()
+        };
         (0..rays)
             .map(|j| {
                 let first = grid
-                    .cast(&o, &d, 100.0)
+                    .cast(&o, &d, 30.0)
                     .map(|(t, pi, n)| (t, n, grid.prims[pi].material, grid.prims[pi].owner));
-                let (t, _, _, hit) =
-                    through_glass(&grid, &o, &d, first, 100.0, pass, &[7, 0, 0, 0, 0, j as u64])
-                        .expect("the wall is always there");
-                (t, hit)
+                through_glass(&grid, &o, &d, first, ground, &model, &[7, 0, 0, 0, 0, j as u64])
+                    .map(|(t, _, _, h)| (t, h))
             })
             .collect()
     }
 
     #[test]
     fn see_through_glass_passes_the_drawn_share_of_beams_and_reproduces() {
-        let opaque = pane_and_wall(0.0, 200);
-        assert!(opaque
-            .iter()
-            .all(|&(t, h)| h == Hit::Actor(0) && (t - 9.5).abs() < 1e-9));
-        let clear = pane_and_wall(1.0, 200);
+        let opaque = pane_and_wall(0.0, 200, true, true);
+        assert!(opaque.iter().all(|&r| r == Some((9.5, Hit::Actor(0)))));
+        let clear = pane_and_wall(1.0, 200, true, true);
         assert!(clear
             .iter()
-            .all(|&(t, h)| h == Hit::Actor(1) && (t - 19.5).abs() < 1e-6));
-        let half = pane_and_wall(0.5, 2000);
-        let passed = half.iter().filter(|&&(_, h)| h == Hit::Actor(1)).count();
+            .all(|r| matches!(r, Some((t, Hit::Actor(1))) if (t - 19.5).abs() < 1e-6)));
+        let half = pane_and_wall(0.5, 2000, true, true);
+        let passed = half
+            .iter()
+            .filter(|r| matches!(r, Some((_, Hit::Actor(1)))))
+            .count();
         assert!((850..1150).contains(&passed), "{passed} of 2000 passed at 0.5");
-        assert_eq!(half, pane_and_wall(0.5, 2000));
+        assert_eq!(half, pane_and_wall(0.5, 2000, true, true));
+    }
+
+    #[test]
+    fn a_beam_through_the_glass_returns_the_ground_behind_unless_the_old_data_are_asked_for() {
+        let fixed = pane_and_wall(1.0, 50, false, true);
+        assert!(fixed.iter().all(|&r| r == Some((30.0, Hit::Ground))));
+        let old = pane_and_wall(1.0, 50, false, false);
+        assert!(old.iter().all(Option::is_none));
+        // The same draws pass in both: only what a passing beam returns differs.
+        let pass = |v: &[Option<(f64, Hit)>]| {
+            v.iter()
+                .map(|r| r.map(|x| x.1) == Some(Hit::Actor(0)))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            pass(&pane_and_wall(0.5, 500, false, true)),
+            pass(&pane_and_wall(0.5, 500, false, false))
+        );
     }
 }

@@ -126,9 +126,13 @@ pub struct LidarModel {
     /// Probability that a beam which meets a car's side glass passes through it (0: glass is an
     /// opaque, dark surface, as before issue 29's `--glass see-through`). A passing beam goes on
     /// through the cabin and returns from what lies behind: the lower body's top (the seats and
-    /// the far door at belt height) or another object; one that meets nothing else returns nothing
-    /// (see `raycast::through_glass`).
+    /// the far door at belt height), another object or the ground behind the car (see
+    /// `raycast::through_glass`).
     pub glass_pass: f64,
+    /// `false` reproduces the first see-through data (`--glass see-through-no-ground`, the
+    /// v5-glass candidate's `data/v5g`): a beam that passes the glass and meets nothing else
+    /// returns nothing instead of the ground behind the car.
+    pub glass_ground: bool,
 }
 
 impl Default for LidarModel {
@@ -143,6 +147,7 @@ impl Default for LidarModel {
             dropout: 0.01,
             constant_intensity: None,
             glass_pass: 0.0,
+            glass_ground: true,
         }
     }
 }
