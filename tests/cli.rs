@@ -1567,3 +1567,62 @@ fn synth_glass_see_through_changes_the_sweeps_and_refuses_unknown_values() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--glass"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_refiner_of_chosen_widths_trains_and_loads_and_bad_widths_are_refused() {
+    // `mlod train refiner --point-mlp … --head …` (issue 32's capacity lever).
+    let dir = std::env::temp_dir().join(format!("mlod-cli-widths-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let sd = concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data");
+    let (props, out) = (dir.join("props"), dir.join("refiner.safetensors"));
+    let (props_s, out_s) = (props.to_str().unwrap(), out.to_str().unwrap());
+    let train = |widths: &[&str]| {
+        let mut args = vec![
+            "train",
+            "refiner",
+            "--dataset",
+            sd,
+            "--proposals",
+            props_s,
+            "--out",
+            out_s,
+        ];
+        args.extend_from_slice(&[
+            "--steps",
+            "2",
+            "--batch",
+            "4",
+            "--points",
+            "64",
+            "--log-every",
+            "1",
+        ]);
+        args.extend_from_slice(widths);
+        mlod(&args)
+    };
+    let bad = train(&["--point-mlp", "8,0", "--head", "16"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("--point-mlp"), "{err}");
+    assert!(!out.exists());
+    let db = mlod(&[
+        "train",
+        "proposals",
+        "--dataset",
+        sd,
+        "--out",
+        props_s,
+        "--cases",
+        "input",
+        "--max-samples",
+        "2",
+    ]);
+    assert!(db.status.success(), "{}", String::from_utf8_lossy(&db.stderr));
+    let ok = train(&["--point-mlp", "8,16", "--head", "16"]);
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let r = mlod::refine::Refiner::load(&out, None, Default::default()).expect("the trained refiner loads");
+    assert_eq!(
+        (r.config.point_mlp.as_slice(), r.config.head.as_slice()),
+        ([8, 16].as_slice(), [16].as_slice())
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

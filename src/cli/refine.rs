@@ -72,6 +72,12 @@ pub struct RefinerArgs {
     /// well they fit (issue 32).
     #[arg(long)]
     iou_score: bool,
+    /// Widths of the shared point MLP, comma-separated (the last is the global feature's).
+    #[arg(long, value_delimiter = ',', default_values_t = [32, 64, 128])]
+    point_mlp: Vec<usize>,
+    /// Widths of the fully connected layers before the two heads, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [128, 64])]
+    head: Vec<usize>,
     /// Continue from the checkpoint (<out>.ckpt.safetensors) after a kill.
     #[arg(long)]
     resume: bool,
@@ -123,6 +129,15 @@ pub fn refiner(a: RefinerArgs, command: String) -> Result<()> {
     cfg.model.gather.points = a.points;
     cfg.model.gather.features.trace = !a.no_trace;
     cfg.model.iou_score = a.iou_score;
+    if a.point_mlp.is_empty() || a.point_mlp.iter().chain(&a.head).any(|&w| w == 0 || w > 4096) {
+        anyhow::bail!(
+            "--point-mlp and --head take widths of 1 to 4096 (--point-mlp at least one), got {:?} and {:?}",
+            a.point_mlp,
+            a.head
+        );
+    }
+    cfg.model.point_mlp = a.point_mlp;
+    cfg.model.head = a.head;
     cfg.model.gather.features.intensity = a.extra_features;
     cfg.model.gather.features.lidar = a.extra_features;
     cfg.command = command;
