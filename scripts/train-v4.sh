@@ -11,8 +11,9 @@
 #   OUT   where the weights, loss CSVs, checkpoints and logs go
 #   CASE  top input left right feature (default: all five, in that order); Result Fusion
 #         reuses top/left/right
-# The binary is target/release/mlod (cargo build --release); STEPS (default 6000) and SEED
-# (default 4) can be set in the environment.
+# The binary is target/release/mlod (cargo build --release); STEPS (default 6000, the stage-1
+# steps), REFINER_STEPS (default 12000: 6000 left the refiner under-trained, docs/robustness.md
+# "A third training lever") and SEED (default 4) can be set in the environment.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 data=${1:?DATA}
@@ -21,6 +22,7 @@ shift 2
 cases=("$@")
 [ ${#cases[@]} -gt 0 ] || cases=(top input left right feature)
 steps=${STEPS:-6000}
+refiner_steps=${REFINER_STEPS:-12000}
 seed=${SEED:-4}
 mkdir -p "$out"
 bin=${MLOD_BIN:-target/release/mlod}
@@ -67,11 +69,13 @@ stage proposals "$bin" train proposals --dataset "$data/train" --models "$out" -
 refiner_resume=()
 [ -f "$out/refiner.ckpt.safetensors" ] && refiner_resume=(--resume)
 stage refiner "$bin" train refiner --dataset "$data/train" --proposals "$out/proposals" \
-  --out "$out/refiner.safetensors" --steps 6000 --seed 0 --log-every 10 "${refiner_resume[@]}"
+  --out "$out/refiner.safetensors" --steps "$refiner_steps" --seed 0 --log-every 100 "${refiner_resume[@]}"
 notrace_resume=()
 [ -f "$out/refiner-notrace.ckpt.safetensors" ] && notrace_resume=(--resume)
 stage refiner-notrace "$bin" train refiner --dataset "$data/train" --proposals "$out/proposals" \
-  --out "$out/refiner-notrace.safetensors" --steps 6000 --seed 0 --log-every 10 --no-trace "${notrace_resume[@]}"
+  --out "$out/refiner-notrace.safetensors" --steps "$refiner_steps" --seed 0 --log-every 100 --no-trace "${notrace_resume[@]}"
 stage tune-refiner "$bin" train tune-refiner --dataset "$data/train" --models "$out"
+stage tune-union "$bin" train tune-refiner --dataset "$data/train" --models "$out" --union-only \
+  --union-cases mlod-u,mlod-ir-drop --union-nms 0.3,0.5,0.7 --union-vote 0.5,0.6,0.7
 stage stats "$bin" stats --dataset "$data/train" --samples 200 --summary --update-manifest "$out"
 echo "all done"

@@ -367,12 +367,7 @@ fn the_iou_scoring_refiner_candidate_records_its_recipe_and_reproduces() {
     // assets/models/iou-refiner (issue 32): the shipped stage-1 models with a refiner whose
     // classification head learned the IoU quality (`mlod train refiner ... --iou-score`) on a
     // database with the certain-points cases' proposals, its decoding chosen on validation.
-    let dir = default_models_dir().join("iou-refiner");
-    let m = Manifest::load(&dir).expect("the candidate's manifest");
-    let shipped = Manifest::load(&default_models_dir()).unwrap();
-    for (case, entry) in &shipped.models {
-        assert_eq!(m.models[case].sha256, entry.sha256, "{case}: the shipped stage 1");
-    }
+    let (dir, m, _) = candidate_with_shipped_stage1("iou-refiner");
     let r = m.refiner.as_ref().expect("its refiner");
     assert_command_has(
         &r.command,
@@ -386,16 +381,36 @@ fn the_iou_scoring_refiner_candidate_records_its_recipe_and_reproduces() {
     let refiner = mlod::refine::Refiner::load_shipped(&dir).unwrap();
     assert!(refiner.config.iou_score && refiner.config.gather.features.trace);
     assert_eq!(m.refine.as_ref().map(|t| t.score.as_str()), Some("refined"));
+    check_candidate_refinements(&dir, "iou-refiner");
+}
+
+/// A candidate folder under assets/models holding the shipped stage-1 models: its path, its
+/// manifest and the shipped manifest.
+fn candidate_with_shipped_stage1(name: &str) -> (std::path::PathBuf, Manifest, Manifest) {
+    let dir = default_models_dir().join(name);
+    let m = Manifest::load(&dir).expect("the candidate's manifest");
+    let shipped = Manifest::load(&default_models_dir()).unwrap();
+    for (case, entry) in &shipped.models {
+        assert_eq!(m.models[case].sha256, entry.sha256, "{case}: the shipped stage 1");
+    }
+    (dir, m, shipped)
+}
+
+/// MLOD-I and `mlod-ir-drop` of a candidate folder reproduce tests/fixtures/detections/NAME on
+/// two sample_data frames at α = 0.04, seed 0, bit for bit (`MLOD_BLESS=all` rewrites them).
+fn check_candidate_refinements(dir: &Path, name: &str) {
     let ds = Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
     let tokens: Vec<String> = ds.sample_tokens().iter().take(2).map(|t| t.to_string()).collect();
     let params = FuseParams {
         perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).unwrap(),
         ..Default::default()
     };
-    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections/iou-refiner");
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/detections")
+        .join(name);
     let bless = std::env::var("MLOD_BLESS").is_ok_and(|v| v == "all");
     for case in [Case::MlodI, Case::MlodIrDrop] {
-        check_refinements(&dir, &fixtures, case, &ds, &tokens, &params, bless);
+        check_refinements(dir, &fixtures, case, &ds, &tokens, &params, bless);
     }
 }
 
@@ -443,4 +458,25 @@ fn the_union_case_refines_both_views_proposals() {
         }
     }
     assert_eq!(m.refiner().decoding.nms_iou, Some(iou));
+}
+
+#[test]
+fn the_six_thousand_step_refiner_stays_loadable_and_reproduces() {
+    // assets/models/refiner-6k: the v4 set as first shipped, with the refiner of 6000 steps that
+    // the 12 000-step one replaced (docs/robustness.md, "A third training lever"); the earlier
+    // tables' MLOD figures come from it.
+    let (dir, m, shipped) = candidate_with_shipped_stage1("refiner-6k");
+    for (old, new) in [
+        (&m.refiner, &shipped.refiner),
+        (&m.refiner_notrace, &shipped.refiner_notrace),
+    ] {
+        let (old, new) = (
+            old.as_ref().expect("old refiner"),
+            new.as_ref().expect("shipped refiner"),
+        );
+        assert_eq!((old.steps, new.steps), (6000, 12_000));
+        assert_command_has(&new.command, &["--steps 12000", "--dataset data/v4/train"]);
+        assert_ne!(old.sha256, new.sha256);
+    }
+    check_candidate_refinements(&dir, "refiner-6k");
 }
