@@ -906,15 +906,15 @@ fn write_screenshot_sessions() {
         .and_then(|b| b.result.as_ref())
         .is_some());
     save(&h, "failures");
-    // The sweep window on the v4 Table II of the shipped refiner (with three rows beyond the paper), over the first sight.
+    // The sweep window on the v4 Table II of the shipped refiner (with three rows beyond the
+    // paper), over the first sight.
+    const SWEEP: &str = "docs/sweeps/v4/table2-12k";
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
-    h.state_mut()
-        .open_sweep(&dir.join("../docs/sweeps/v4/table2-12k"))
-        .unwrap();
+    h.state_mut().open_sweep(&dir.join("..").join(SWEEP)).unwrap();
     h.run_steps(2);
     let mut s = h.state().current_session();
     s.dataset = "sample_data".into();
-    s.sweep = Some("docs/sweeps/v4/table2-12k".into());
+    s.sweep = Some(SWEEP.into());
     s.save(&dir.join("sweep.session.json")).unwrap();
 }
 
