@@ -260,7 +260,11 @@ pub fn scan(
             cfg.case.paper_name()
         )));
     }
+    // The models folder's decoding: box voting and, for stage-1 cases, its ground gate.
     let detector = crate::refine::load_detector(models, cfg.case, crate::detect::model::Voting::Manifest)
+        .and_then(|d| {
+            crate::detect::ground_gate::gated(d, crate::detect::ground_gate::GateChoice::Manifest, models)
+        })
         .map_err(|source| ScanError::Sample {
             token: "(loading the detector)".into(),
             source,

@@ -39,6 +39,10 @@ pub struct SynthArgs {
     /// candidate's), where a beam through the glass that meets nothing else returned nothing.
     #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through", "see-through-no-ground"])]
     glass: String,
+    /// Share (0–1) of the stretches between driveways lined by a wall or hedge right behind the
+    /// curb, as on narrow streets where a car parks half a metre from a garden wall (0: none).
+    #[arg(long, default_value_t = 0.0)]
+    curb_walls: f64,
     /// Show a progress bar.
     #[arg(long)]
     progress: bool,
@@ -101,6 +105,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
             glass_ground: args.glass != "see-through-no-ground",
             ..Default::default()
         },
+        curb_walls: args.curb_walls,
         ..Default::default()
     };
     let bar = args.progress.then(|| {

@@ -43,6 +43,13 @@ pub struct DetectorRun {
     /// 100 everywhere): how much a model leans on intensity.
     #[arg(long, value_parser = parse_intensity)]
     pub set_intensity: Option<f32>,
+    /// Drop detections whose bottom floats more than this many metres above the ground around
+    /// them (the 10th percentile of the lowest points of the 1 m cells within 6 m): boxes a
+    /// simulator-trained detector puts on hedges and walls of real streets. `manifest`: the
+    /// models folder's gate for the stage-1 cases (`mlod train tune-gate`; none if it has
+    /// none), `off`, or a height in metres (any case).
+    #[arg(long, default_value = "manifest")]
+    pub ground_gate: mlod::detect::ground_gate::GateChoice,
     #[command(flatten)]
     pub external: super::external::ExternalArgs,
 }
@@ -67,13 +74,18 @@ impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
         self.external.define_for(&[case])?;
-        Ok(mlod::refine::load_detector_oc(
+        let detector = mlod::refine::load_detector_oc(
             &self.models_dir(),
             case,
             self.vote_iou,
             &mlod::calib::IcpConfig::default(),
             self.oc_prior,
             self.drop_trace,
+        )?;
+        Ok(mlod::detect::ground_gate::gated(
+            detector,
+            self.ground_gate,
+            &self.models_dir(),
         )?)
     }
 

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use mlod::detect::ground_gate::GateChoice;
 use mlod::detect::model::Voting;
 use mlod::detect::train::{calibrate_temperatures, train_stage1, TrainConfig};
 use mlod::detect::weights::default_models_dir;
@@ -25,6 +26,10 @@ pub enum TrainCommand {
     /// candidate, by the mean car moderate AP_3D@0.7 over the cases) and record it, with every
     /// candidate's figures, in the models' manifest.json.
     TuneVote(TuneVoteArgs),
+    /// Choose the ground gate of the stage-1 cases on the validation split (no gate or each
+    /// candidate; the smallest gate that costs no mean car moderate AP_3D@0.7 wins) and record it,
+    /// with every candidate's figures, in the models' manifest.json.
+    TuneGate(TuneGateArgs),
     /// Build the refiner's proposal database: the stage-1 fusion detectors run once over the
     /// training scenes under injected perturbations (resumable, shard by shard).
     Proposals(super::refine::ProposalsArgs),
@@ -47,6 +52,25 @@ pub struct TuneVoteArgs {
     #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.7")]
     candidates: Vec<f64>,
     /// The cases scored (comma separated; default: all six).
+    #[arg(long, value_delimiter = ',')]
+    cases: Vec<Case>,
+    /// At most this many validation samples.
+    #[arg(long)]
+    samples: Option<usize>,
+}
+
+#[derive(clap::Args)]
+pub struct TuneGateArgs {
+    /// The training dataset (its validation scenes are used).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Models folder with manifest.json (default: assets/models); its manifest records the choice.
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Candidate gates in metres, in (0, 5] (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.75,1.0")]
+    candidates: Vec<f32>,
+    /// The stage-1 cases scored (comma separated; default: those the manifest has weights for).
     #[arg(long, value_delimiter = ',')]
     cases: Vec<Case>,
     /// At most this many validation samples.
@@ -206,6 +230,7 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             Ok(())
         }
         TrainCommand::TuneVote(a) => tune_vote(a),
+        TrainCommand::TuneGate(a) => tune_gate(a),
         TrainCommand::CalibrateTemperature(a) => {
             let models = a.models.unwrap_or_else(default_models_dir);
             let temps = calibrate_temperatures(
@@ -233,15 +258,8 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
 fn tune_vote(a: TuneVoteArgs) -> Result<()> {
     use mlod::detect::weights::{Manifest, VoteTuning};
     use std::collections::BTreeMap;
-    let models = a.models.clone().unwrap_or_else(default_models_dir);
-    let mut manifest = Manifest::load(&models)?;
-    let dataset = super::open_dataset(&a.dataset)?;
-    let opts = mlod::eval::EvalOptions {
-        samples: a.samples,
-        validation_only: true,
-        ..Default::default()
-    };
-    let tokens = super::eval::evaluated_tokens(&dataset, &a.dataset, &opts)?;
+    let (models, mut manifest, dataset, opts, tokens) =
+        validation_setup(a.models.as_deref(), &a.dataset, a.samples)?;
     let cases = if a.cases.is_empty() {
         Case::ALL.to_vec()
     } else {
@@ -254,32 +272,18 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
     let mut validation = BTreeMap::new();
     let mut best: Option<(Voting, f64)> = None;
     for voting in candidates {
-        let run = DetectorRun {
-            alpha: 0.0,
-            seed: 0,
-            models: Some(models.clone()),
-            vote_iou: voting,
-            oc_prior: Default::default(),
-            drop_trace: mlod::detect::drop::DROP_TRACE,
-            set_intensity: None,
-            external: Default::default(),
-        };
-        let mut per_case = BTreeMap::new();
-        for &case in &cases {
-            let dets = super::eval::detect_case(&dataset, &tokens, &run, case, &FuseParams::default())?;
-            let report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
-            let ap = mlod::eval::kitti::car_moderate_07(&report.kitti).with_context(|| {
-                format!("{}: no car of moderate difficulty in the validation scenes", case)
-            })?;
-            eprintln!("vote {voting}: {} {ap:.2}", case.paper_name());
-            per_case.insert(case.to_string(), ap);
-        }
-        let mean = per_case.values().sum::<f64>() / per_case.len() as f64;
-        per_case.insert("mean".to_string(), mean);
-        println!(
-            "vote {voting}: mean car moderate AP_3D@0.7 {mean:.2} over {} samples",
-            tokens.len()
-        );
+        let label = format!("vote {voting}");
+        let per_case = validation_ap(
+            &dataset,
+            &tokens,
+            &opts,
+            &models,
+            &cases,
+            voting,
+            GateChoice::Off,
+            &label,
+        )?;
+        let mean = per_case["mean"];
         validation.insert(voting.to_string(), per_case);
         if best.is_none_or(|(_, b)| mean > b) {
             best = Some((voting, mean));
@@ -303,4 +307,132 @@ fn tune_vote(a: TuneVoteArgs) -> Result<()> {
         ),
     }
     Ok(())
+}
+
+/// `mlod train tune-gate`: no gate and every candidate (smallest first) on the stage-1 cases
+/// over the validation scenes; the smallest gate whose mean car moderate AP_3D@0.7 is at least
+/// that without a gate wins, and goes into the manifest atomically.
+fn tune_gate(a: TuneGateArgs) -> Result<()> {
+    use mlod::detect::weights::{GateTuning, Manifest};
+    use std::collections::BTreeMap;
+    let (models, mut manifest, dataset, opts, tokens) =
+        validation_setup(a.models.as_deref(), &a.dataset, a.samples)?;
+    let cases: Vec<Case> = if a.cases.is_empty() {
+        manifest.models.keys().copied().collect()
+    } else {
+        a.cases.clone()
+    };
+    if let Some(c) = cases.iter().find(|c| c.is_mlod()) {
+        anyhow::bail!("{c}: the ground gate is chosen on stage-1 cases");
+    }
+    let mut candidates = a.candidates.clone();
+    candidates.sort_by(f32::total_cmp);
+    candidates.dedup();
+    let mut choices = vec![GateChoice::Off];
+    for &c in &candidates {
+        mlod::detect::ground_gate::check_gate(c).map_err(anyhow::Error::msg)?;
+        choices.push(GateChoice::Metres(c));
+    }
+    let mut validation = BTreeMap::new();
+    let mut without = f64::NAN;
+    let mut chosen = None;
+    for choice in choices {
+        let label = format!("gate {choice}");
+        let per_case = validation_ap(
+            &dataset,
+            &tokens,
+            &opts,
+            &models,
+            &cases,
+            Voting::Manifest,
+            choice,
+            &label,
+        )?;
+        let mean = per_case["mean"];
+        validation.insert(choice.to_string(), per_case);
+        match choice {
+            GateChoice::Metres(v) if chosen.is_none() && mean >= without => chosen = Some(f64::from(v)),
+            GateChoice::Off => without = mean,
+            _ => {}
+        }
+    }
+    manifest.ground_gate = Some(GateTuning {
+        max_lift_m: chosen,
+        command: command_line(),
+        validation,
+    });
+    manifest.save(&models)?;
+    let file = models.join(Manifest::FILE);
+    match chosen {
+        Some(v) => println!("chose ground gate {v} m -> {}", file.display()),
+        None => println!("every gate costs validation AP: none -> {}", file.display()),
+    }
+    Ok(())
+}
+
+/// Car moderate AP_3D@0.7 of each case over the validation `tokens` with `vote_iou` and
+/// `ground_gate`, and their mean (`mean`); `label` names the setting in the log.
+#[allow(clippy::too_many_arguments)]
+fn validation_ap(
+    dataset: &mlod::dataset::Dataset,
+    tokens: &[String],
+    opts: &mlod::eval::EvalOptions,
+    models: &std::path::Path,
+    cases: &[Case],
+    vote_iou: Voting,
+    ground_gate: GateChoice,
+    label: &str,
+) -> Result<std::collections::BTreeMap<String, f64>> {
+    let run = DetectorRun {
+        alpha: 0.0,
+        seed: 0,
+        models: Some(models.to_path_buf()),
+        vote_iou,
+        oc_prior: Default::default(),
+        drop_trace: mlod::detect::drop::DROP_TRACE,
+        set_intensity: None,
+        ground_gate,
+        external: Default::default(),
+    };
+    let mut per_case = std::collections::BTreeMap::new();
+    for &case in cases {
+        let dets = super::eval::detect_case(dataset, tokens, &run, case, &FuseParams::default())?;
+        let report = mlod::eval::evaluate_detections(dataset, &dets, opts)?;
+        let ap = mlod::eval::kitti::car_moderate_07(&report.kitti)
+            .with_context(|| format!("{case}: no car of moderate difficulty in the validation scenes"))?;
+        eprintln!("{label}: {} {ap:.2}", case.paper_name());
+        per_case.insert(case.to_string(), ap);
+    }
+    let mean = per_case.values().sum::<f64>() / per_case.len().max(1) as f64;
+    per_case.insert("mean".to_string(), mean);
+    println!(
+        "{label}: mean car moderate AP_3D@0.7 {mean:.2} over {} samples",
+        tokens.len()
+    );
+    Ok(per_case)
+}
+
+/// What `tune-vote` and `tune-gate` start from: the models folder (default: the shipped one)
+/// and its manifest, the dataset, evaluation options for its validation scenes and their tokens.
+fn validation_setup(
+    models: Option<&std::path::Path>,
+    dataset_path: &std::path::Path,
+    samples: Option<usize>,
+) -> Result<(
+    PathBuf,
+    mlod::detect::weights::Manifest,
+    mlod::dataset::Dataset,
+    mlod::eval::EvalOptions,
+    Vec<String>,
+)> {
+    let models = models.map_or_else(default_models_dir, std::path::Path::to_path_buf);
+    let manifest = mlod::detect::weights::Manifest::load(&models)?;
+    let dataset = super::open_dataset(dataset_path)?;
+    let opts = mlod::eval::EvalOptions {
+        samples,
+        validation_only: true,
+        ..Default::default()
+    };
+    let tokens = super::eval::evaluated_tokens(&dataset, dataset_path, &opts)?;
+    Ok((models, manifest, dataset, opts, tokens))
 }

@@ -26,6 +26,7 @@ pub mod config;
 pub mod drop;
 pub mod external;
 pub mod fastconv;
+pub mod ground_gate;
 pub mod gt_sampling;
 pub mod infer;
 pub mod model;

@@ -220,6 +220,22 @@ pub struct Manifest {
     /// and `mlod eval` compare a dataset with, to name what lies outside the training data.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub training_stats: Option<crate::dataset::TrainingStats>,
+    /// The ground gate chosen on the validation split (`mlod train tune-gate`, issue 29): the
+    /// stage-1 cases drop boxes floating more than this above the ground; absent: no gate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ground_gate: Option<GateTuning>,
+}
+
+/// The ground gate of a models folder's stage-1 cases and how it was chosen.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GateTuning {
+    /// The chosen gate (m); `None`: every candidate cost validation AP.
+    pub max_lift_m: Option<f64>,
+    /// The command that chose it.
+    pub command: String,
+    /// Per candidate (`off`, `0.5`, ...): car moderate AP_3D@0.7 (%) on the validation scenes,
+    /// per case and their mean (`mean`).
+    pub validation: BTreeMap<String, BTreeMap<String, f64>>,
 }
 
 /// The refiner's decoding and how it was chosen.
@@ -266,6 +282,12 @@ impl Manifest {
             path: path.clone(),
             what: e.to_string(),
         })?;
+        if let Some(v) = manifest.ground_gate.as_ref().and_then(|g| g.max_lift_m) {
+            super::ground_gate::check_gate(v as f32).map_err(|e| DetectError::Manifest {
+                path: path.clone(),
+                what: format!("ground_gate.max_lift_m: {e}"),
+            })?;
+        }
         // Every detector decodes with this IoU.
         if let Some(v) = manifest.vote_iou() {
             crate::geometry::nms::check_vote_iou(v).map_err(|e| DetectError::Manifest {

@@ -10,6 +10,7 @@ use std::sync::Arc;
 
 use crate::calib::{Calibration, IcpConfig, OcPrior};
 use crate::dataset::{Dataset, Frame, SampleSummary};
+use crate::detect::ground_gate::{gated, GateChoice};
 use crate::detect::model::{load_detector, Voting};
 use crate::detect::{Case, Detection, Detector};
 use crate::pipeline::FuseParams;
@@ -28,18 +29,20 @@ impl LoadedDetector {
     /// fuse parameters.
     fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
         let case = case.without_oc();
-        if case.dropped().is_some() {
-            let d =
-                crate::refine::load_detector(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
-            return Ok(Self::Stage1(Arc::from(d)));
-        }
         if case.is_mlod() {
             let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
-            Ok(Self::Mlod(Arc::new(m)))
-        } else {
-            let d = load_detector(models, case).map_err(|e| e.to_string())?;
-            Ok(Self::Stage1(Arc::from(d)))
+            return Ok(Self::Mlod(Arc::new(m)));
         }
+        let d = if case.dropped().is_some() {
+            crate::refine::load_detector(models, case, Voting::Manifest)
+        } else {
+            load_detector(models, case)
+        };
+        // The models folder's ground gate (`mlod train tune-gate`), as `mlod detect` applies it.
+        let d = d
+            .and_then(|d| gated(d, GateChoice::Manifest, models))
+            .map_err(|e| e.to_string())?;
+        Ok(Self::Stage1(Arc::from(d)))
     }
 
     /// The categories it outputs.

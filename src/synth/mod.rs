@@ -65,6 +65,9 @@ pub struct SynthConfig {
     pub roof: RoofRandomisation,
     /// How car sizes are drawn.
     pub car_sizes: CarSizes,
+    /// Share of the stretches between driveways that get a wall or hedge right behind the curb
+    /// (0: none, as up to v5; see [`street::Street::add_curb_walls`]).
+    pub curb_walls: f64,
 }
 
 impl Default for SynthConfig {
@@ -78,6 +81,7 @@ impl Default for SynthConfig {
             min_points_per_box: 1,
             roof: RoofRandomisation::default(),
             car_sizes: CarSizes::default(),
+            curb_walls: 0.0,
         }
     }
 }
@@ -124,6 +128,12 @@ impl SynthConfig {
             return bad(format!(
                 "glass pass probability must be within 0..=1, got {}",
                 m.glass_pass
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.curb_walls) {
+            return bad(format!(
+                "curb wall share must be within 0..=1, got {}",
+                self.curb_walls
             ));
         }
         let jitter = self.roof.height_jitter_m;

@@ -49,6 +49,7 @@ const TRACK: f64 = 1.6;
 const TAG_TOWN: u64 = 0x746f_776e;
 const TAG_STREET: u64 = 0x7374_7265;
 const TAG_SCENE: u64 = 0x7363_656e;
+const TAG_CURB_WALLS: u64 = 0x6375_7262;
 
 /// A state of an actor in the real Lyft `attribute.json`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -305,7 +306,12 @@ impl Town {
         let streets: Vec<Street> = street_rngs
             .iter_mut()
             .enumerate()
-            .map(|(s, rng)| Street::generate(s, layouts[s], lengths[s], rng))
+            .map(|(s, rng)| {
+                let mut street = Street::generate(s, layouts[s], lengths[s], rng);
+                let mut walls_rng = layout_rng(&[seed, TAG_CURB_WALLS, s as u64]);
+                street.add_curb_walls(cfg.curb_walls, &mut walls_rng);
+                street
+            })
             .collect();
 
         // Phase 3: where each scene drives, and its actors.

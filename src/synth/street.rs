@@ -439,6 +439,58 @@ impl Street {
     }
 }
 
+impl Street {
+    /// `mlod synth --curb-walls P`: walls and hedges right behind the curb, as on narrow streets
+    /// where a garden wall or a hedge lines the road and a parked car stands half a metre from
+    /// it. Each stretch between two driveways on either side gets one with probability `share`:
+    /// a wall (60 %: 0.2 m thick, 1.0–2.8 m high, reflectivity 0.15–0.45) or a hedge (0.6–1.0 m
+    /// thick, 1.0–2.5 m high), starting 0.25–0.6 m behind the curb and ending within the planting
+    /// strip (the sidewalk stays free; a street light or tree there stands in the wall), with the
+    /// driveways left open.
+    /// `rng` is a stream of its own, so the streets and actors are those without the walls: only
+    /// what the LiDARs see changes.
+    pub fn add_curb_walls(&mut self, share: f64, rng: &mut impl Rng) {
+        if share <= 0.0 {
+            return;
+        }
+        let curb = self.ground.layout.curb();
+        for (side_index, side) in [-1.0f64, 1.0].into_iter().enumerate() {
+            let drives = self.ground.driveways[side_index].clone();
+            for pair in drives.windows(2) {
+                let (x0, x1) = (pair[0].1 + 0.3, pair[1].0 - 0.3);
+                if x1 - x0 < 2.0 || !rng.random_bool(share.min(1.0)) {
+                    continue;
+                }
+                let hedge = rng.random_bool(0.4);
+                let (half_width, material) = if hedge {
+                    (0.5 * rng.random_range(0.6..1.0), materials::FOLIAGE)
+                } else {
+                    (0.1, Material::uniform(rng.random_range(0.15..0.45)))
+                };
+                let height = if hedge {
+                    rng.random_range(1.0..2.5)
+                } else {
+                    rng.random_range(1.0..2.8)
+                };
+                // Within the planting strip, clear of the sidewalk's pedestrians.
+                let room = self.ground.layout.strip_width - 2.0 * half_width - 0.05;
+                let y = side * (curb + rng.random_range(0.25f64..0.6).min(room) + half_width);
+                let cx = 0.5 * (x0 + x1);
+                let g = self.ground.height(cx, y);
+                self.statics.push(Primitive::new(
+                    [cx, y, g + 0.5 * height - 0.2],
+                    0.0,
+                    Shape::Cuboid {
+                        half: [0.5 * (x1 - x0), half_width, 0.5 * height + 0.2],
+                    },
+                    material,
+                    Hit::Static,
+                ));
+            }
+        }
+    }
+}
+
 /// A tree: trunk cylinder and an ellipsoidal crown whose bottom stays above 2.5 m (clear of
 /// pedestrians and of vans parked beside it).
 fn push_tree(out: &mut Vec<Primitive>, ground: &Ground, x: f64, y: f64, rng: &mut impl Rng) {

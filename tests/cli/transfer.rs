@@ -76,3 +76,129 @@ fn set_intensity_reaches_the_detector_and_absurd_values_are_refused() {
         );
     }
 }
+
+#[test]
+fn ground_gate_drops_only_floating_boxes_and_refuses_absurd_gates() {
+    // On the simulator's own frames the cars stand on the ground: a 5 m gate drops nothing, a
+    // 0.5 m gate keeps nearly all of LiDAR-Top's confident boxes, a 1 cm gate drops many; every
+    // kept box is one of the ungated, unchanged.
+    let args = ["detect", "--dataset", "sample_data", "--case", "top", "--json"];
+    let boxes = |extra: &[&str]| {
+        json(&[&args[..], extra].concat())["detections"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default()
+    };
+    let all = boxes(&[]);
+    let (wide, half, tiny) = (
+        boxes(&["--ground-gate", "5"]),
+        boxes(&["--ground-gate", "0.5"]),
+        boxes(&["--ground-gate", "0.01"]),
+    );
+    let confident = |v: &[serde_json::Value]| {
+        v.iter()
+            .filter(|d| d["score"].as_f64().unwrap_or(0.0) >= 0.3)
+            .count()
+    };
+    assert_eq!(wide, all);
+    assert!(confident(&all) >= 10, "{}", confident(&all));
+    assert!(
+        10 * confident(&half) >= 9 * confident(&all),
+        "{} of {}",
+        confident(&half),
+        confident(&all)
+    );
+    assert!(tiny.len() < half.len() && half.len() <= all.len());
+    assert!(half.iter().chain(&tiny).all(|d| all.contains(d)));
+    for bad in ["0", "-1", "NaN", "6", "high"] {
+        let arg = format!("--ground-gate={bad}");
+        let out = mlod(&[&args[..], &[arg.as_str()]].concat());
+        assert!(!out.status.success(), "{bad} accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("ground") && !err.contains("panicked"),
+            "{bad}: {err}"
+        );
+    }
+}
+
+#[test]
+fn tune_gate_records_the_smallest_free_gate_and_detect_applies_it() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("mlod-cli-gate-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (data, models) = (dir.join("data"), dir.join("models"));
+    std::fs::create_dir_all(&models).expect("tmp");
+    // Ten one-sample scenes: the tenth is the validation split.
+    let (d, m) = (data.to_str().expect("utf-8"), models.to_str().expect("utf-8"));
+    let synth = mlod(&[
+        "synth",
+        "--out",
+        d,
+        "--scenes",
+        "10",
+        "--samples-per-scene",
+        "1",
+        "--seed",
+        "7",
+    ]);
+    assert!(
+        synth.status.success(),
+        "{}",
+        String::from_utf8_lossy(&synth.stderr)
+    );
+    let candidate = root.join("assets/models/v6-walls");
+    for f in ["manifest.json", "top.safetensors"] {
+        std::fs::copy(candidate.join(f), models.join(f)).expect("copy the candidate");
+    }
+    let tune = |extra: &[&str]| {
+        let args = [&["train", "tune-gate", "--dataset", d, "--models", m][..], extra].concat();
+        mlod(&args)
+    };
+    let out = tune(&["--candidates", "0.5,0.01"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(models.join("manifest.json")).expect("manifest"))
+            .expect("JSON");
+    let gate = &manifest["ground_gate"];
+    assert!(gate["command"].as_str().expect("command").contains("tune-gate"));
+    let ap = |k: &str| gate["validation"][k]["mean"].as_f64().expect(k);
+    let (off, tiny, half) = (ap("off"), ap("0.01"), ap("0.5"));
+    // The smallest gate that costs no validation AP.
+    let want = if tiny >= off {
+        Some(0.01)
+    } else if half >= off {
+        Some(0.5)
+    } else {
+        None
+    };
+    assert_eq!(
+        gate["max_lift_m"].as_f64().map(|v| (v * 100.0).round() / 100.0),
+        want,
+        "{gate}"
+    );
+    // detect applies the folder's gate unless told otherwise.
+    let detect = |extra: &[&str]| {
+        let args = [
+            &["detect", "--dataset", d, "--case", "top", "--models", m, "--json"][..],
+            extra,
+        ]
+        .concat();
+        json(&args)["detections"].clone()
+    };
+    let explicit = want.map_or("off".to_string(), |v| v.to_string());
+    assert_eq!(detect(&[]), detect(&["--ground-gate", &explicit]));
+    // Absurd candidates and MLOD cases are refused by name.
+    for (extra, what) in [
+        (&["--candidates", "7"][..], "ground gate"),
+        (&["--cases", "mlod-i"][..], "stage-1"),
+    ] {
+        let out = tune(extra);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(what) && !err.contains("panicked"),
+            "{err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -130,3 +130,43 @@ fn lyft_intensity_is_constant_and_bad_jitter_is_refused() {
         assert!(err.contains("roof height jitter"), "{err}");
     }
 }
+
+#[test]
+fn curb_walls_line_the_planting_strip_and_leave_streets_and_actors_alone() {
+    let plain = config(Vec::new(), 0.0);
+    let walled_cfg = SynthConfig {
+        curb_walls: 1.0,
+        ..plain.clone()
+    };
+    let (a, b) = (Town::generate(&plain), Town::generate(&walled_cfg));
+    let mut walls = 0;
+    for (sa, sb) in a.streets.iter().zip(&b.streets) {
+        let n = sa.statics.len();
+        assert!(sb.statics.len() > n, "street {}: no walls", sa.index);
+        // The street's own structures come first and are those without the walls.
+        for (pa, pb) in sa.statics.iter().zip(&sb.statics[..n]) {
+            assert_eq!(pa.center, pb.center);
+        }
+        let l = &sa.ground.layout;
+        for w in &sb.statics[n..] {
+            let y = w.center[1].abs();
+            assert!(y > l.curb() + 0.25 && y < l.strip_outer(), "wall at |y| {y}");
+            walls += 1;
+        }
+    }
+    assert!(walls >= 20, "{walls} walls");
+    // Parked cars, pedestrians and the drive are unchanged.
+    for (sa, sb) in a.scenes.iter().zip(&b.scenes) {
+        assert_eq!(sa.actors, sb.actors);
+    }
+    // The default draws none; a share outside 0..=1 is refused by name.
+    assert_eq!(SynthConfig::default().curb_walls, 0.0);
+    for bad in [-0.1, 1.5, f64::NAN] {
+        let c = SynthConfig {
+            curb_walls: bad,
+            ..plain.clone()
+        };
+        let err = c.validate().expect_err("refused").to_string();
+        assert!(err.contains("curb wall share"), "{err}");
+    }
+}
