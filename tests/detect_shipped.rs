@@ -243,7 +243,7 @@ fn the_curb_walls_candidate_records_its_recipe() {
         &["mlod train tune-gate", "--dataset data/v6w/train"],
     );
     assert!(gate.validation["0.5"]["mean"] >= gate.validation["off"]["mean"]);
-    assert!(gate.validation["0.3"]["mean"] < gate.validation["off"]["mean"]);
+    assert!(gate.validation.contains_key("1") && !gate.validation.contains_key("0.3"));
 }
 
 #[test]

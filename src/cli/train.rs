@@ -67,9 +67,10 @@ pub struct TuneGateArgs {
     /// Models folder with manifest.json (default: assets/models); its manifest records the choice.
     #[arg(long)]
     models: Option<PathBuf>,
-    /// Candidate gates in metres, in (0, 5] (comma separated).
-    #[arg(long, value_delimiter = ',', default_value = "0.3,0.5,0.75,1.0")]
-    candidates: Vec<f32>,
+    /// Candidate gates in metres, in (0, 5] (comma separated). They start at 0.5 m: on real
+    /// frames true cars' bottoms lie up to 0.3 m above the ground estimate (docs/realism.md).
+    #[arg(long, value_delimiter = ',', default_value = "0.5,0.75,1.0")]
+    candidates: Vec<f64>,
     /// The stage-1 cases scored (comma separated; default: those the manifest has weights for).
     #[arg(long, value_delimiter = ',')]
     cases: Vec<Case>,
@@ -326,17 +327,17 @@ fn tune_gate(a: TuneGateArgs) -> Result<()> {
         anyhow::bail!("{c}: the ground gate is chosen on stage-1 cases");
     }
     let mut candidates = a.candidates.clone();
-    candidates.sort_by(f32::total_cmp);
+    candidates.sort_by(f64::total_cmp);
     candidates.dedup();
-    let mut choices = vec![GateChoice::Off];
+    let mut choices = vec![(GateChoice::Off, None)];
     for &c in &candidates {
-        mlod::detect::ground_gate::check_gate(c).map_err(anyhow::Error::msg)?;
-        choices.push(GateChoice::Metres(c));
+        let gate = mlod::detect::ground_gate::check_gate(c as f32).map_err(anyhow::Error::msg)?;
+        choices.push((GateChoice::Metres(gate), Some(c)));
     }
     let mut validation = BTreeMap::new();
     let mut without = f64::NAN;
     let mut chosen = None;
-    for choice in choices {
+    for (choice, metres) in choices {
         let label = format!("gate {choice}");
         let per_case = validation_ap(
             &dataset,
@@ -350,9 +351,9 @@ fn tune_gate(a: TuneGateArgs) -> Result<()> {
         )?;
         let mean = per_case["mean"];
         validation.insert(choice.to_string(), per_case);
-        match choice {
-            GateChoice::Metres(v) if chosen.is_none() && mean >= without => chosen = Some(f64::from(v)),
-            GateChoice::Off => without = mean,
+        match metres {
+            Some(v) if chosen.is_none() && mean >= without => chosen = Some(v),
+            None => without = mean,
             _ => {}
         }
     }
