@@ -24,8 +24,8 @@ pub const RADIUS_M: f64 = 6.0;
 pub const QUANTILE: f64 = 0.1;
 /// Fewer cells with points than this around a box: no verdict, the box is kept.
 pub const MIN_CELLS: usize = 5;
-/// The largest gate a user may ask for (m).
-pub const MAX_GATE_M: f32 = 5.0;
+// The range a gate may take lives beside the manifest that records one (no module cycle).
+pub use super::weights::{check_gate, MAX_GATE_M};
 
 /// The lowest point of each cell of a grid covering some region of the cloud.
 struct LowerEnvelope {
@@ -148,17 +148,6 @@ pub fn ground_lift(cloud: &FusedCloud, dets: &[Detection]) -> Vec<Option<f64>> {
                 .filter(|v| v.is_finite())
         })
         .collect()
-}
-
-/// Checks a gate a user gave (m).
-pub fn check_gate(m: f32) -> Result<f32, String> {
-    if m.is_finite() && m > 0.0 && m <= MAX_GATE_M {
-        Ok(m)
-    } else {
-        Err(format!(
-            "a ground gate is a height in (0, {MAX_GATE_M}] m, got {m}"
-        ))
-    }
 }
 
 /// Which gate a run uses: the models folder's (`mlod train tune-gate`), none, or this one (m).

@@ -226,6 +226,20 @@ pub struct Manifest {
     pub ground_gate: Option<GateTuning>,
 }
 
+/// The largest ground gate a user or a manifest may give (m).
+pub const MAX_GATE_M: f32 = 5.0;
+
+/// Checks a ground gate (m): finite, in (0, [`MAX_GATE_M`]].
+pub fn check_gate(m: f32) -> Result<f32, String> {
+    if m.is_finite() && m > 0.0 && m <= MAX_GATE_M {
+        Ok(m)
+    } else {
+        Err(format!(
+            "a ground gate is a height in (0, {MAX_GATE_M}] m, got {m}"
+        ))
+    }
+}
+
 /// The ground gate of a models folder's stage-1 cases and how it was chosen.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GateTuning {
@@ -283,7 +297,7 @@ impl Manifest {
             what: e.to_string(),
         })?;
         if let Some(v) = manifest.ground_gate.as_ref().and_then(|g| g.max_lift_m) {
-            super::ground_gate::check_gate(v as f32).map_err(|e| DetectError::Manifest {
+            check_gate(v as f32).map_err(|e| DetectError::Manifest {
                 path: path.clone(),
                 what: format!("ground_gate.max_lift_m: {e}"),
             })?;
