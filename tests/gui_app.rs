@@ -263,6 +263,39 @@ fn hovering_a_ground_truth_box_shows_its_tooltip() {
 }
 
 #[test]
+fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
+    use mlod::detect::ground_gate::{gated, GateChoice};
+    let mut s = session_at(0.0, ColorMode::Source);
+    s.detection.case = Case::Top;
+    // assets/models/v6-walls records a 0.5 m gate (`mlod train tune-gate`).
+    let models = assets_models().join("v6-walls");
+    let mut h = harness_with(Some(s.clone()), Some(models.clone()));
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let (view, _) = h.state().detection().expect("the detector ran");
+    assert!(h.query_by_label_contains("ground gate 0.5 m").is_some());
+    // The window's boxes are those of the folder's detector behind its gate, as `mlod detect`
+    // runs it.
+    let frame = h.state().frame().unwrap().clone();
+    let det = gated(
+        mlod::detect::model::load_detector(&models, Case::Top).unwrap(),
+        GateChoice::Manifest,
+        &models,
+    )
+    .unwrap();
+    let want = det
+        .detect(&frame, &mlod::pipeline::FuseParams::default())
+        .unwrap();
+    assert_eq!(view.detections, want);
+    // The shipped folder has no gate, and the panel says nothing of one.
+    let mut h = harness(Some(s));
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    assert!(h.state().detection().is_some());
+    assert!(h.query_by_label_contains("ground gate").is_none());
+}
+
+#[test]
 fn run_button_draws_proposals_matched_against_the_ground_truth() {
     let mut s = session_at(0.0, ColorMode::Source);
     s.detection.case = Case::Top;

@@ -16,6 +16,10 @@ pub struct GuiArgs {
     /// A saved session (reproduces its view exactly; its dataset unless --dataset is given).
     #[arg(long)]
     session: Option<PathBuf>,
+    /// Models folder with manifest.json (default: $MLOD_MODELS, else the shipped assets/models),
+    /// e.g. assets/models/v6-walls for real frames.
+    #[arg(long)]
+    models: Option<PathBuf>,
     /// Measure: repaint continuously for N frames, print frame times, exit.
     #[arg(long)]
     measure_frames: Option<usize>,
@@ -162,6 +166,10 @@ pub fn gui(args: GuiArgs) -> Result<()> {
     let mut options = app_options(args.dataset, args.session, &args.external, false)?;
     options.measure_frames = args.measure_frames.filter(|n| *n > 0);
     options.measure_run = args.measure_run;
+    if let Some(m) = args.models {
+        mlod::detect::weights::Manifest::load(&m).with_context(|| format!("--models {}", m.display()))?;
+        options.models = Some(m);
+    }
     mlod::gui::run(options).context("the debugger window failed")
 }
 

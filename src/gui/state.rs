@@ -337,6 +337,9 @@ pub struct Loaded {
     pub calibrating: Option<u64>,
     /// Wall time of the last calibration (ms).
     pub calibrate_ms: f64,
+    /// The models folder's ground gate (m; `mlod train tune-gate`), which its stage-1 cases
+    /// run behind.
+    pub ground_gate_m: Option<f32>,
 }
 
 /// The details panel's content for the selected box.

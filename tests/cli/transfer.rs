@@ -202,3 +202,14 @@ fn tune_gate_records_the_smallest_free_gate_and_detect_applies_it() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn gui_refuses_a_models_folder_without_a_manifest_before_opening_a_window() {
+    let out = mlod(&["gui", "--models", "/nonexistent/models"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--models /nonexistent/models") && err.contains("manifest.json"),
+        "{err}"
+    );
+}

@@ -136,6 +136,13 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 }
             });
             compare_lines(p, ui, c);
+            if let (Some(m), false) = (p.loaded.ground_gate_m, v.case.is_mlod()) {
+                ui.label(RichText::new(format!("ground gate {m} m (models folder)")).weak())
+                    .on_hover_text(
+                        "Boxes whose bottom lies more than this above the ground around them were \
+                         dropped (mlod train tune-gate; --ground-gate off in the CLI shows them)",
+                    );
+            }
             if refined {
                 proposal_line(ui, &v.proposal_counts(min_score));
             }
