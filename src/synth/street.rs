@@ -360,31 +360,23 @@ impl Street {
                         Hit::Static,
                     ));
                     let fence = rng.random_range(0.0..1.0);
-                    let fx = x + 4.0 + 0.5 * (lot - 4.5);
+                    // The fence's centre and half-length along the lot, behind the sidewalk.
+                    let fx = [x + 4.0 + 0.5 * (lot - 4.5), 0.5 * (lot - 4.5)];
                     if fence < 0.3 {
                         let wh = rng.random_range(0.8..1.8);
-                        let fy = side * (walk + 0.4);
-                        statics.push(Primitive::new(
-                            [fx, fy, ground.height(fx, fy) + 0.5 * wh - 0.1],
-                            0.0,
-                            Shape::Cuboid {
-                                half: [0.5 * (lot - 4.5), 0.1, 0.5 * wh + 0.1],
-                            },
-                            Material::uniform(rng.random_range(0.15..0.4)),
-                            Hit::Static,
-                        ));
+                        let wall = Material::uniform(rng.random_range(0.15..0.4));
+                        push_wall(
+                            &mut statics,
+                            &ground,
+                            fx,
+                            [side * (walk + 0.4), 0.1],
+                            [wh, 0.1],
+                            wall,
+                        );
                     } else if fence < 0.5 {
                         let hh = rng.random_range(0.9..1.8);
-                        let fy = side * (walk + 0.9);
-                        statics.push(Primitive::new(
-                            [fx, fy, ground.height(fx, fy) + 0.5 * hh - 0.1],
-                            0.0,
-                            Shape::Cuboid {
-                                half: [0.5 * (lot - 4.5), 0.45, 0.5 * hh + 0.1],
-                            },
-                            materials::FOLIAGE,
-                            Hit::Static,
-                        ));
+                        let fy = [side * (walk + 0.9), 0.45];
+                        push_wall(&mut statics, &ground, fx, fy, [hh, 0.1], materials::FOLIAGE);
                     }
                     if setback > 5.0 && rng.random_bool(0.5) {
                         let tx = x + rng.random_range(5.0..lot - 1.0);
@@ -455,8 +447,7 @@ impl Street {
         }
         let curb = self.ground.layout.curb();
         for (side_index, side) in [-1.0f64, 1.0].into_iter().enumerate() {
-            let drives = self.ground.driveways[side_index].clone();
-            for pair in drives.windows(2) {
+            for pair in self.ground.driveways[side_index].windows(2) {
                 let (x0, x1) = (pair[0].1 + 0.3, pair[1].0 - 0.3);
                 if x1 - x0 < 2.0 || !rng.random_bool(share.min(1.0)) {
                     continue;
@@ -475,20 +466,40 @@ impl Street {
                 // Within the planting strip, clear of the sidewalk's pedestrians.
                 let room = self.ground.layout.strip_width - 2.0 * half_width - 0.05;
                 let y = side * (curb + rng.random_range(0.25f64..0.6).min(room) + half_width);
-                let cx = 0.5 * (x0 + x1);
-                let g = self.ground.height(cx, y);
-                self.statics.push(Primitive::new(
-                    [cx, y, g + 0.5 * height - 0.2],
-                    0.0,
-                    Shape::Cuboid {
-                        half: [0.5 * (x1 - x0), half_width, 0.5 * height + 0.2],
-                    },
+                let x = [0.5 * (x0 + x1), 0.5 * (x1 - x0)];
+                push_wall(
+                    &mut self.statics,
+                    &self.ground,
+                    x,
+                    [y, half_width],
+                    [height, 0.2],
                     material,
-                    Hit::Static,
-                ));
+                );
             }
         }
     }
+}
+
+/// A straight wall, fence or hedge along the street: `x` and `y` its centre and half-extent
+/// along each axis, `height` above the ground at its centre (`[height, sink]`: it reaches `sink`
+/// below that ground, so a slope shows no gap under it).
+fn push_wall(
+    out: &mut Vec<Primitive>,
+    ground: &Ground,
+    x: [f64; 2],
+    y: [f64; 2],
+    [height, sink]: [f64; 2],
+    material: Material,
+) {
+    out.push(Primitive::new(
+        [x[0], y[0], ground.height(x[0], y[0]) + 0.5 * height - sink],
+        0.0,
+        Shape::Cuboid {
+            half: [x[1], y[1], 0.5 * height + sink],
+        },
+        material,
+        Hit::Static,
+    ));
 }
 
 /// A tree: trunk cylinder and an ellipsoidal crown whose bottom stays above 2.5 m (clear of
