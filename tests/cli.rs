@@ -573,19 +573,22 @@ fn table1_attribution_agrees_with_eval_attribution() {
     assert!(!bad.status.success());
 }
 
-#[test]
-fn tune_vote_records_its_choice_in_the_manifest() {
-    let root = env!("CARGO_MANIFEST_DIR");
-    let dir = std::env::temp_dir().join(format!("mlod-cli-vote-{}", std::process::id()));
+/// A fresh `$TMP/mlod-cli-TAG-PID` holding `data/`, ten one-sample scenes made by `mlod synth`
+/// (the tenth is the validation split), and `models/`, a copy of `assets/models/FROM`'s manifest
+/// and LiDAR-Top: what the validation-tuning commands work on. Returns (dir, data, models).
+fn tuning_fixture(tag: &str, from: &str) -> (std::path::PathBuf, String, String) {
+    let dir = std::env::temp_dir().join(format!("mlod-cli-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let data = dir.join("data");
-    let models = dir.join("models");
+    let (data, models) = (dir.join("data"), dir.join("models"));
     std::fs::create_dir_all(&models).expect("tmp");
-    // Ten one-sample scenes: the tenth is the validation split.
+    let (d, m) = (
+        data.to_str().expect("utf-8").to_string(),
+        models.to_str().expect("utf-8").to_string(),
+    );
     let synth = mlod(&[
         "synth",
         "--out",
-        data.to_str().expect("utf-8"),
+        &d,
         "--scenes",
         "10",
         "--samples-per-scene",
@@ -598,11 +601,21 @@ fn tune_vote_records_its_choice_in_the_manifest() {
         "{}",
         String::from_utf8_lossy(&synth.stderr)
     );
-    let shipped = std::path::Path::new(root).join("assets/models");
+    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("assets/models")
+        .join(from);
     for f in ["manifest.json", "top.safetensors"] {
-        std::fs::copy(shipped.join(f), models.join(f)).expect("copy the shipped model");
+        std::fs::copy(source.join(f), models.join(f)).expect("copy the models");
     }
-    let (d, m) = (data.to_str().expect("utf-8"), models.to_str().expect("utf-8"));
+    (dir, d, m)
+}
+
+#[test]
+fn tune_vote_records_its_choice_in_the_manifest() {
+    let (dir, d, m) = tuning_fixture("vote", "");
+    let (d, m, models) = (d.as_str(), m.as_str(), std::path::Path::new(&m));
+    let root = env!("CARGO_MANIFEST_DIR");
+    let shipped = std::path::Path::new(root).join("assets/models");
     let out = mlod(&[
         "train",
         "tune-vote",

@@ -195,12 +195,18 @@ pub fn resolve(choice: GateChoice, dir: &std::path::Path, case: Case) -> Option<
         GateChoice::Off => None,
         GateChoice::Metres(v) => Some(v),
         GateChoice::Manifest if case.is_mlod() => None,
-        GateChoice::Manifest => super::weights::Manifest::load(dir)
-            .ok()
-            .and_then(|m| m.ground_gate)
-            .and_then(|g| g.max_lift_m)
-            .map(|v| v as f32),
+        GateChoice::Manifest => manifest_gate(dir),
     }
+}
+
+/// The gate the models folder `dir` records for its stage-1 cases (m; `mlod train tune-gate`),
+/// if it has a readable manifest with one.
+pub fn manifest_gate(dir: &std::path::Path) -> Option<f32> {
+    super::weights::Manifest::load(dir)
+        .ok()
+        .and_then(|m| m.ground_gate)
+        .and_then(|g| g.max_lift_m)
+        .map(|v| v as f32)
 }
 
 /// `inner` behind the gate `choice` gives its case in the models folder `dir`.

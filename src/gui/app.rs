@@ -200,8 +200,7 @@ impl MlodApp {
             consent_notice: None,
             session,
         };
-        app.loaded.ground_gate_m =
-            crate::detect::ground_gate::resolve(Default::default(), &app.models_dir, Case::Top);
+        app.loaded.ground_gate_m = crate::detect::ground_gate::manifest_gate(&app.models_dir);
         let path = app.session.dataset.clone();
         app.open_dataset(path);
         app.case_from_data = auto_color;

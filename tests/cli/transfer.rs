@@ -2,7 +2,7 @@
 //! with the per-box outcomes at 3D IoU 0.5, intensity replaced before the detector, and absurd
 //! values refused.
 
-use super::{json, mlod};
+use super::{json, mlod, tuning_fixture};
 
 #[test]
 fn transfer_check_reports_found_cars_and_agrees_with_per_box_outcomes() {
@@ -124,33 +124,8 @@ fn ground_gate_drops_only_floating_boxes_and_refuses_absurd_gates() {
 
 #[test]
 fn tune_gate_records_the_smallest_free_gate_and_detect_applies_it() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::temp_dir().join(format!("mlod-cli-gate-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let (data, models) = (dir.join("data"), dir.join("models"));
-    std::fs::create_dir_all(&models).expect("tmp");
-    // Ten one-sample scenes: the tenth is the validation split.
-    let (d, m) = (data.to_str().expect("utf-8"), models.to_str().expect("utf-8"));
-    let synth = mlod(&[
-        "synth",
-        "--out",
-        d,
-        "--scenes",
-        "10",
-        "--samples-per-scene",
-        "1",
-        "--seed",
-        "7",
-    ]);
-    assert!(
-        synth.status.success(),
-        "{}",
-        String::from_utf8_lossy(&synth.stderr)
-    );
-    let candidate = root.join("assets/models/v6-walls");
-    for f in ["manifest.json", "top.safetensors"] {
-        std::fs::copy(candidate.join(f), models.join(f)).expect("copy the candidate");
-    }
+    let (dir, d, m) = tuning_fixture("gate", "v6-walls");
+    let (d, m, models) = (d.as_str(), m.as_str(), std::path::Path::new(&m));
     let tune = |extra: &[&str]| {
         let args = [&["train", "tune-gate", "--dataset", d, "--models", m][..], extra].concat();
         mlod(&args)
