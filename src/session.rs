@@ -84,6 +84,10 @@ pub struct Session {
     /// never runs one unless its own command line names it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub external: Vec<ExternalSpec>,
+    /// The models folder the window ran its detectors from, when it was not the one the window
+    /// started with (File > Open models folder…); reopening the session opens it again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub models: Option<PathBuf>,
     /// The file the session was loaded from (not saved): what a consent to its detectors is
     /// remembered for.
     #[serde(skip)]
@@ -242,6 +246,7 @@ impl Session {
             sweep: None,
             failures: None,
             external: Vec::new(),
+            models: None,
             source: SessionSource::default(),
         }
     }

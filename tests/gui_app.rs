@@ -1720,5 +1720,7 @@ fn a_lidar_top_only_sample_says_so_and_turns_off_what_needs_an_auxiliary_lidar()
     assert_eq!(h3.state().session().detection.case, Case::Input);
 }
 
+#[path = "gui_app/models.rs"]
+mod models;
 #[path = "gui_app/visibility.rs"]
 mod visibility;

@@ -11,6 +11,7 @@ mod detection;
 mod external;
 mod failures;
 mod measure;
+mod models;
 mod scene;
 mod selection;
 
@@ -185,6 +186,7 @@ impl MlodApp {
             models_dir: options
                 .models
                 .clone()
+                .or_else(|| session.models.clone())
                 .or_else(|| std::env::var_os("MLOD_MODELS").map(PathBuf::from))
                 .unwrap_or_else(default_models_dir),
             calib_seq: 0,
@@ -201,6 +203,7 @@ impl MlodApp {
             session,
         };
         app.loaded.ground_gate_m = crate::detect::ground_gate::manifest_gate(&app.models_dir);
+        app.loaded.models = app.models_dir.clone();
         let path = app.session.dataset.clone();
         app.open_dataset(path);
         app.case_from_data = auto_color;
@@ -500,7 +503,11 @@ impl MlodApp {
         self.view.settings.line_width = s.line_width;
         let same_dataset = self.loaded.dataset.is_some() && s.dataset == self.session.dataset;
         self.wanted_token = s.sample_token.clone();
+        let models = s.models.clone();
         self.session = s;
+        if let Some(dir) = models.filter(|d| *d != self.models_dir) {
+            self.open_models(dir, 0.0);
+        }
         self.shell.auto_color = false;
         self.loaded.detection_b = None;
         self.reopen_sweep(0.0);

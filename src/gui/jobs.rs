@@ -71,6 +71,9 @@ pub struct DetectRequest {
 /// What a detector run gives back.
 pub struct DetectOutput {
     pub detector: LoadedDetector,
+    /// The models folder it was loaded from (a run from a folder the window has since left is
+    /// dropped).
+    pub models: PathBuf,
     /// Stage 1's boxes (an MLOD case's proposals), highest score first.
     pub detections: Vec<Detection>,
     /// An MLOD case's refinements of `detections`.
@@ -279,6 +282,7 @@ impl Jobs {
                 let detections = detections.map_err(|e| e.to_string())?;
                 Ok(DetectOutput {
                     detector,
+                    models: req.models.clone(),
                     detections,
                     refined,
                 })

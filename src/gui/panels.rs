@@ -161,6 +161,17 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     ui.close();
                     files::ask(p, FilePurpose::OpenSweep);
                 }
+                if ui
+                    .button("Open models folder…")
+                    .on_hover_text(
+                        "Run the detectors from another folder of weights with its manifest.json \
+                         (a candidate such as assets/models/v6-walls for real roof LiDARs, or your own)",
+                    )
+                    .clicked()
+                {
+                    ui.close();
+                    files::ask(p, FilePurpose::OpenModels);
+                }
                 let save = egui::Button::new("Save session…").shortcut_text(shortcut(ui, &SAVE_SHORTCUT));
                 if ui.add(save).clicked() {
                     ui.close();

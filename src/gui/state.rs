@@ -78,6 +78,8 @@ pub enum Action {
     ExportClip(PathBuf),
     /// Read a sweep folder and show its AP-against-α plot.
     OpenSweep(PathBuf),
+    /// Run the detectors from another models folder (its manifest.json is checked first).
+    OpenModels(PathBuf),
     /// Open (or close) the failure browser.
     ToggleFailures,
     /// Scan the session's case over the browser's scope at the session's perturbation.
@@ -134,6 +136,7 @@ pub struct Shell {
 pub enum FilePurpose {
     OpenDataset,
     OpenSweep,
+    OpenModels,
     SaveSession,
     LoadSession,
     ExportPng,
@@ -146,6 +149,7 @@ impl FilePurpose {
         match self {
             FilePurpose::OpenDataset => "Open dataset (a folder)",
             FilePurpose::OpenSweep => "Open sweep results (a folder)",
+            FilePurpose::OpenModels => "Open models folder (with manifest.json)",
             FilePurpose::SaveSession => "Save session",
             FilePurpose::LoadSession => "Load session",
             FilePurpose::ExportPng => "Export viewport PNG",
@@ -157,7 +161,7 @@ impl FilePurpose {
     /// The file name offered (empty for folders).
     pub fn default_name(self) -> &'static str {
         match self {
-            FilePurpose::OpenDataset | FilePurpose::OpenSweep => "",
+            FilePurpose::OpenDataset | FilePurpose::OpenSweep | FilePurpose::OpenModels => "",
             FilePurpose::SaveSession | FilePurpose::LoadSession => "session.json",
             FilePurpose::ExportPng => "viewport.png",
             FilePurpose::ExportCloud => "fused.ply",
@@ -177,13 +181,16 @@ impl FilePurpose {
     }
 
     pub fn folder(self) -> bool {
-        matches!(self, FilePurpose::OpenDataset | FilePurpose::OpenSweep)
+        matches!(
+            self,
+            FilePurpose::OpenDataset | FilePurpose::OpenSweep | FilePurpose::OpenModels
+        )
     }
 
     /// The extensions its filter offers.
     pub fn extensions(self) -> &'static [&'static str] {
         match self {
-            FilePurpose::OpenDataset | FilePurpose::OpenSweep => &[],
+            FilePurpose::OpenDataset | FilePurpose::OpenSweep | FilePurpose::OpenModels => &[],
             FilePurpose::SaveSession | FilePurpose::LoadSession => &["json"],
             FilePurpose::ExportPng => &["png"],
             FilePurpose::ExportCloud => &["ply", "pcd"],
@@ -196,6 +203,7 @@ impl FilePurpose {
         match self {
             FilePurpose::OpenDataset => Action::OpenDataset(path),
             FilePurpose::OpenSweep => Action::OpenSweep(path),
+            FilePurpose::OpenModels => Action::OpenModels(path),
             FilePurpose::SaveSession => Action::SaveSession(path),
             FilePurpose::LoadSession => Action::LoadSession(path),
             FilePurpose::ExportPng => Action::ExportPng(path),
@@ -340,6 +348,8 @@ pub struct Loaded {
     /// The models folder's ground gate (m; `mlod train tune-gate`), which its stage-1 cases
     /// run behind.
     pub ground_gate_m: Option<f32>,
+    /// The models folder the detectors run from (named in the Detection panel).
+    pub models: PathBuf,
 }
 
 /// The details panel's content for the selected box.

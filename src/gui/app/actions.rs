@@ -77,6 +77,7 @@ impl MlodApp {
                         self.toast(now, format!("cannot open the sweep: {e}"), true);
                     }
                 }
+                Action::OpenModels(dir) => self.open_models(dir, now),
                 Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),

@@ -81,6 +81,11 @@ impl MlodApp {
         out: DetectOutput,
         millis: f64,
     ) -> Option<DetectionView> {
+        if out.models != self.models_dir {
+            // Loaded from the folder the window had before File > Open models folder…: neither
+            // shown nor kept (the switch ran the case again).
+            return None;
+        }
         let frame = self.loaded.frame.as_deref().filter(|f| f.sample_token == token);
         let view = frame.map(|frame| {
             let raw = RawDetection {

@@ -1,0 +1,42 @@
+//! File > Open models folder…: the detectors run from another folder of weights (a candidate
+//! such as `assets/models/v6-walls` for real roof LiDARs, or a user's own training run). The
+//! folder's manifest.json is read first; one that does not load leaves the window on the folder
+//! it had, with the reason in a toast.
+
+use std::path::PathBuf;
+
+use super::MlodApp;
+use crate::detect::ground_gate::manifest_gate;
+use crate::detect::weights::Manifest;
+
+impl MlodApp {
+    /// Switches the detectors to the models folder `dir`: the loaded detectors are dropped, the
+    /// folder's ground gate and the dataset's notes against its training data are read again, and
+    /// a detection on screen (or in flight) runs again from the new folder.
+    pub fn open_models(&mut self, dir: PathBuf, now: f64) {
+        if let Err(e) = Manifest::load(&dir) {
+            self.toast(now, format!("cannot open the models folder: {e}"), true);
+            return;
+        }
+        self.models_dir = dir.clone();
+        self.session.models = Some(dir.clone());
+        self.loaded.models = dir.clone();
+        self.loaded.ground_gate_m = manifest_gate(&dir);
+        self.detectors.clear();
+        if let Some(ds) = self.loaded.dataset.clone() {
+            self.loaded.depth_notes.clear();
+            self.jobs
+                .depth_notes(self.session.dataset.clone(), ds, dir.clone());
+        }
+        self.toast(now, format!("detectors from {}", dir.display()), false);
+        let shown = self.loaded.detection.is_some() || self.loaded.detection_b.is_some();
+        if shown || self.loaded.detecting {
+            self.run_detector();
+        }
+    }
+
+    /// The models folder the detectors run from.
+    pub fn models_dir(&self) -> &std::path::Path {
+        &self.models_dir
+    }
+}
