@@ -32,6 +32,8 @@ pub struct ScanConfig {
     pub match_iou: f64,
     /// Boxes from this score up take part (as drawn in the window).
     pub min_score: f32,
+    /// Every point's intensity replaced by this before the detector runs (`--set-intensity`).
+    pub set_intensity: Option<f32>,
 }
 
 /// What went wrong with one box.
@@ -156,7 +158,12 @@ fn scan_sample(
     index: usize,
     token: &str,
 ) -> Result<SampleFailures, DetectError> {
-    let frame = dataset.frame(token)?;
+    let mut frame = dataset.frame(token)?;
+    if let Some(v) = cfg.set_intensity {
+        for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
+            scan.points.intensity.fill(v);
+        }
+    }
     let categories = detector.categories();
     let gt_boxes: Vec<&crate::dataset::GtBox> = frame
         .boxes
@@ -233,15 +240,8 @@ fn scan_sample(
     })
 }
 
-/// Runs the scan: the samples worst first (most misses + false positives, then the largest IoU
-/// drop, then token order). `progress(done, total)` after each sample; `cancel` stops it.
-pub fn scan(
-    dataset: &Dataset,
-    models: &Path,
-    cfg: &ScanConfig,
-    cancel: &AtomicBool,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Vec<SampleFailures>, ScanError> {
+/// A scan's parameters in range, and a case it can run.
+fn check(cfg: &ScanConfig) -> Result<(), ScanError> {
     if !(cfg.match_iou.is_finite() && cfg.match_iou > 0.0 && cfg.match_iou <= 1.0) {
         return Err(ScanError::BadParameter(format!(
             "match IoU {} must be in (0, 1]",
@@ -260,6 +260,24 @@ pub fn scan(
             cfg.case.paper_name()
         )));
     }
+    if let Some(v) = cfg.set_intensity {
+        if !v.is_finite() {
+            return Err(ScanError::BadParameter(format!("intensity {v} must be finite")));
+        }
+    }
+    Ok(())
+}
+
+/// Runs the scan: the samples worst first (most misses + false positives, then the largest IoU
+/// drop, then token order). `progress(done, total)` after each sample; `cancel` stops it.
+pub fn scan(
+    dataset: &Dataset,
+    models: &Path,
+    cfg: &ScanConfig,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<SampleFailures>, ScanError> {
+    check(cfg)?;
     // The models folder's decoding: box voting and, for stage-1 cases, its ground gate.
     let detector = crate::refine::load_detector(models, cfg.case, crate::detect::model::Voting::Manifest)
         .and_then(|d| {
@@ -269,6 +287,26 @@ pub fn scan(
             token: "(loading the detector)".into(),
             source,
         })?;
+    scan_with(dataset, detector.as_ref(), cfg, cancel, progress)
+}
+
+/// [`scan`] with a detector the caller loaded (`mlod failures` loads it as `mlod detect` does:
+/// its `--vote-iou`, `--ground-gate` and `--drop-trace`); `cfg.case` must be its case.
+pub fn scan_with(
+    dataset: &Dataset,
+    detector: &dyn Detector,
+    cfg: &ScanConfig,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<SampleFailures>, ScanError> {
+    if detector.case() != cfg.case {
+        return Err(ScanError::BadParameter(format!(
+            "the detector runs {}, the scan asks for {}",
+            detector.case().paper_name(),
+            cfg.case.paper_name()
+        )));
+    }
+    check(cfg)?;
     let done = AtomicUsize::new(0);
     let total = cfg.tokens.len();
     let mut out: Vec<SampleFailures> = cfg
@@ -279,11 +317,10 @@ pub fn scan(
             if cancel.load(Ordering::Relaxed) {
                 return Err(ScanError::Cancelled);
             }
-            let r =
-                scan_sample(dataset, detector.as_ref(), cfg, i, token).map_err(|source| ScanError::Sample {
-                    token: token.clone(),
-                    source,
-                });
+            let r = scan_sample(dataset, detector, cfg, i, token).map_err(|source| ScanError::Sample {
+                token: token.clone(),
+                source,
+            });
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
             r
         })
@@ -317,6 +354,7 @@ mod tests {
             tokens: ds.sample_tokens().iter().take(3).map(|t| t.to_string()).collect(),
             match_iou: 0.7,
             min_score: 0.3,
+            set_intensity: None,
         }
     }
 

@@ -9,7 +9,7 @@ use anyhow::{bail, Result};
 use super::args::parse_unit;
 use super::detect::DetectorRun;
 use mlod::detect::Case;
-use mlod::failures::{scan, ScanConfig};
+use mlod::failures::{scan_with, ScanConfig};
 
 #[derive(clap::Args)]
 pub struct FailuresArgs {
@@ -68,18 +68,20 @@ pub fn run(a: FailuresArgs) -> Result<()> {
             a.dataset.display()
         );
     }
-    a.run.external.define_for(&[a.case])?;
     let cfg = ScanConfig {
         case: a.case,
         params: a.run.fuse_params()?,
         tokens,
         match_iou: a.match_iou,
         min_score: a.min_score as f32,
+        set_intensity: a.run.set_intensity,
     };
+    // Loaded as `mlod detect` loads it: --vote-iou, --ground-gate, --drop-trace, --oc-prior.
+    let detector = a.run.load(a.case)?;
     let bar = indicatif::ProgressBar::new(cfg.tokens.len() as u64);
-    let rows = scan(
+    let rows = scan_with(
         &dataset,
-        &a.run.models_dir(),
+        detector.as_ref(),
         &cfg,
         &AtomicBool::new(false),
         &|d, _| bar.set_position(d as u64),

@@ -89,6 +89,7 @@ impl MlodApp {
             tokens: self.scan_tokens(scope),
             match_iou: self.session.detection.match_iou,
             min_score: self.session.detection.min_score,
+            set_intensity: None,
         };
         self.scan_seq += 1;
         let id = self.scan_seq;
