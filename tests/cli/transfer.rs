@@ -194,33 +194,6 @@ fn failures_load_the_detector_as_detect_does() {
     // `mlod failures` takes `mlod detect`'s detector flags: a 1 cm ground gate drops LiDAR-Top's
     // boxes, so the scan counts more misses; without the flag the scan is the window's (the
     // models folder's decoding), and --set-intensity reaches the detector.
-    let misses = |extra: &[&str]| -> u64 {
-        let base = [
-            "failures",
-            "--dataset",
-            "sample_data",
-            "--case",
-            "top",
-            "--samples",
-            "2",
-            "--json",
-        ];
-        json(&[&base[..], extra].concat())["samples"]
-            .as_array()
-            .expect("samples")
-            .iter()
-            .map(|s| s["missed"].as_u64().unwrap_or(0))
-            .sum()
-    };
-    let plain = misses(&[]);
-    let gated = misses(&["--ground-gate", "0.01"]);
-    assert!(gated > plain, "a 1 cm gate: {gated} misses against {plain}");
-    assert_eq!(
-        misses(&["--ground-gate", "off"]),
-        plain,
-        "the shipped folder has no gate"
-    );
-    // The v2 models read intensity: a scan with every intensity at 0 lists other boxes.
     let scan = |extra: &[&str]| {
         let base = [
             "failures",
@@ -231,10 +204,25 @@ fn failures_load_the_detector_as_detect_does() {
             "--samples",
             "2",
             "--json",
-            "--models",
-            "assets/models/v2",
         ];
         json(&[&base[..], extra].concat())["samples"].clone()
     };
-    assert_ne!(scan(&[]), scan(&["--set-intensity", "0"]));
+    let misses = |v: &serde_json::Value| -> u64 {
+        v.as_array()
+            .expect("samples")
+            .iter()
+            .map(|s| s["missed"].as_u64().unwrap_or(0))
+            .sum()
+    };
+    let plain = misses(&scan(&[]));
+    let gated = misses(&scan(&["--ground-gate", "0.01"]));
+    assert!(gated > plain, "a 1 cm gate: {gated} misses against {plain}");
+    assert_eq!(
+        misses(&scan(&["--ground-gate", "off"])),
+        plain,
+        "the shipped folder has no gate"
+    );
+    // The v2 models read intensity: a scan with every intensity at 0 lists other boxes.
+    let v2 = ["--models", "assets/models/v2"];
+    assert_ne!(scan(&v2), scan(&[&v2[..], &["--set-intensity", "0"]].concat()));
 }
