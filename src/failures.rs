@@ -273,16 +273,16 @@ fn check(cfg: &ScanConfig) -> Result<(), ScanError> {
 pub fn scan(
     dataset: &Dataset,
     models: &Path,
+    gate: crate::detect::ground_gate::GateChoice,
     cfg: &ScanConfig,
     cancel: &AtomicBool,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<SampleFailures>, ScanError> {
     check(cfg)?;
-    // The models folder's decoding: box voting and, for stage-1 cases, its ground gate.
+    // The models folder's decoding: box voting and, for stage-1 cases, `gate` (its ground gate
+    // with `GateChoice::Manifest`).
     let detector = crate::refine::load_detector(models, cfg.case, crate::detect::model::Voting::Manifest)
-        .and_then(|d| {
-            crate::detect::ground_gate::gated(d, crate::detect::ground_gate::GateChoice::Manifest, models)
-        })
+        .and_then(|d| crate::detect::ground_gate::gated(d, gate, models))
         .map_err(|source| ScanError::Sample {
             token: "(loading the detector)".into(),
             source,
@@ -337,11 +337,29 @@ pub fn scan_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::detect::ground_gate::GateChoice;
     use crate::detect::weights::default_models_dir;
     use crate::uncertainty::Perturbation;
 
     fn dataset() -> Dataset {
         Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap()
+    }
+
+    /// A scan with the shipped models and their decoding.
+    fn shipped(
+        ds: &Dataset,
+        cfg: &ScanConfig,
+        cancel: &AtomicBool,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<Vec<SampleFailures>, ScanError> {
+        scan(
+            ds,
+            &default_models_dir(),
+            GateChoice::Manifest,
+            cfg,
+            cancel,
+            progress,
+        )
     }
 
     fn config(ds: &Dataset, alpha: f64) -> ScanConfig {
@@ -362,7 +380,7 @@ mod tests {
     fn at_alpha_zero_nothing_drops_and_the_counts_are_the_matching() {
         let ds = dataset();
         let cancel = AtomicBool::new(false);
-        let r = scan(&ds, &default_models_dir(), &config(&ds, 0.0), &cancel, &|_, _| {}).unwrap();
+        let r = shipped(&ds, &config(&ds, 0.0), &cancel, &|_, _| {}).unwrap();
         assert_eq!(r.len(), 3);
         for s in &r {
             assert_eq!(
@@ -391,7 +409,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| scan(&ds, &default_models_dir(), &cfg, &cancel, &|_, _| {}).unwrap())
+                .install(|| shipped(&ds, &cfg, &cancel, &|_, _| {}).unwrap())
         };
         let one = run(1);
         assert_eq!(one, run(2));
@@ -401,20 +419,14 @@ mod tests {
         assert!(one.iter().any(|s| s.worst_drop > 0.0));
         cancel.store(true, Ordering::Relaxed);
         assert!(matches!(
-            scan(&ds, &default_models_dir(), &cfg, &cancel, &|_, _| {}),
+            shipped(&ds, &cfg, &cancel, &|_, _| {}),
             Err(ScanError::Cancelled)
         ));
         let mut bad = cfg.clone();
         bad.match_iou = f64::NAN;
-        assert!(scan(
-            &ds,
-            &default_models_dir(),
-            &bad,
-            &AtomicBool::new(false),
-            &|_, _| {}
-        )
-        .unwrap_err()
-        .to_string()
-        .contains("match IoU"));
+        assert!(shipped(&ds, &bad, &AtomicBool::new(false), &|_, _| {})
+            .unwrap_err()
+            .to_string()
+            .contains("match IoU"));
     }
 }

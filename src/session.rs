@@ -194,6 +194,9 @@ pub struct DetectionSettings {
     pub show_refined: bool,
     /// Highlight the active points (§V-C) of the hovered or selected refined box.
     pub show_active: bool,
+    /// Run the stage-1 cases behind the models folder's ground gate, if it has one (off: see the
+    /// boxes the gate drops).
+    pub ground_gate: bool,
 }
 
 impl Default for DetectionSettings {
@@ -206,6 +209,7 @@ impl Default for DetectionSettings {
             show: true,
             show_refined: true,
             show_active: false,
+            ground_gate: true,
         }
     }
 }

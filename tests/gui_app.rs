@@ -287,6 +287,20 @@ fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
         .detect(&frame, &mlod::pipeline::FuseParams::default())
         .unwrap();
     assert_eq!(view.detections, want);
+    // Its checkbox switches the gate off: the case runs again, and shows what the gate dropped.
+    h.get_by_label("ground gate 0.5 m (models folder)").click();
+    h.run_steps(3);
+    assert!(!h.state().session().detection.ground_gate);
+    let ungated = mlod::detect::model::load_detector(&models, Case::Top)
+        .unwrap()
+        .detect(&frame, &mlod::pipeline::FuseParams::default())
+        .unwrap();
+    let (view, _) = h.state().detection().expect("the detector ran again");
+    assert_eq!(view.detections, ungated);
+    assert!(ungated.len() > want.len(), "the gate drops something here");
+    h.get_by_label("ground gate 0.5 m (models folder)").click();
+    h.run_steps(3);
+    assert_eq!(h.state().detection().unwrap().0.detections, want);
     // The shipped folder has no gate, and the panel says nothing of one.
     let mut h = harness(Some(s));
     h.get_by_label("Run (D)").click();
@@ -393,9 +407,10 @@ fn missing_weights_are_an_error_and_keep_the_cloud() {
     h.run_steps(3);
     assert!(h.state().detection().is_none());
     assert!(h.state().fused().is_some(), "the cloud stays");
+    let toasts = h.state().toast_texts().join("\n");
     assert!(
-        h.query_by_label_contains("/nonexistent/models").is_some(),
-        "the error names the folder"
+        toasts.contains("/nonexistent/models"),
+        "the error names the folder: {toasts}"
     );
 }
 

@@ -27,7 +27,7 @@ impl LoadedDetector {
     /// Loads the shipped detector of `case` from a models folder (box voting as its manifest says).
     /// An (OC) case loads the detector it wraps: the calibration comes with the request's
     /// fuse parameters.
-    fn load(models: &std::path::Path, case: Case) -> Result<Self, String> {
+    fn load(models: &std::path::Path, case: Case, gate: GateChoice) -> Result<Self, String> {
         let case = case.without_oc();
         if case.is_mlod() {
             let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
@@ -40,7 +40,7 @@ impl LoadedDetector {
         };
         // The models folder's ground gate (`mlod train tune-gate`), as `mlod detect` applies it.
         let d = d
-            .and_then(|d| gated(d, GateChoice::Manifest, models))
+            .and_then(|d| gated(d, gate, models))
             .map_err(|e| e.to_string())?;
         Ok(Self::Stage1(Arc::from(d)))
     }
@@ -64,6 +64,8 @@ pub struct DetectRequest {
     /// The already-loaded detector of this case, if any.
     pub cached: Option<LoadedDetector>,
     pub models: PathBuf,
+    /// The ground gate of its stage-1 cases (the models folder's, or off).
+    pub gate: GateChoice,
     /// For the compare half (the session's second case) rather than the main view.
     pub compare: bool,
 }
@@ -74,6 +76,8 @@ pub struct DetectOutput {
     /// The models folder it was loaded from (a run from a folder the window has since left is
     /// dropped).
     pub models: PathBuf,
+    /// The gate it was loaded with.
+    pub gate: GateChoice,
     /// Stage 1's boxes (an MLOD case's proposals), highest score first.
     pub detections: Vec<Detection>,
     /// An MLOD case's refinements of `detections`.
@@ -173,7 +177,7 @@ impl Jobs {
         &mut self,
         id: u64,
         dataset: Arc<Dataset>,
-        models: PathBuf,
+        (models, gate): (PathBuf, GateChoice),
         cfg: crate::failures::ScanConfig,
         done: Arc<std::sync::atomic::AtomicUsize>,
         cancel: Arc<std::sync::atomic::AtomicBool>,
@@ -182,7 +186,7 @@ impl Jobs {
         self.spawn(move || {
             let start = std::time::Instant::now();
             let scan = || {
-                crate::failures::scan(&dataset, &models, &cfg, &cancel, &|d, _| {
+                crate::failures::scan(&dataset, &models, gate, &cfg, &cancel, &|d, _| {
                     done.store(d, std::sync::atomic::Ordering::Relaxed);
                     if let Some(ctx) = &repaint {
                         ctx.request_repaint();
@@ -270,7 +274,7 @@ impl Jobs {
             let result = (|| {
                 let detector = match req.cached {
                     Some(d) => d,
-                    None => LoadedDetector::load(&req.models, req.case)?,
+                    None => LoadedDetector::load(&req.models, req.case, req.gate)?,
                 };
                 let (detections, refined) = match &detector {
                     LoadedDetector::Stage1(d) => (d.detect(&req.frame, &req.params), None),
@@ -283,6 +287,7 @@ impl Jobs {
                 Ok(DetectOutput {
                     detector,
                     models: req.models.clone(),
+                    gate: req.gate,
                     detections,
                     refined,
                 })

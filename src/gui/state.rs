@@ -80,6 +80,8 @@ pub enum Action {
     OpenSweep(PathBuf),
     /// Run the detectors from another models folder (its manifest.json is checked first).
     OpenModels(PathBuf),
+    /// The ground gate was switched on or off (the session holds which).
+    GateChanged,
     /// Open (or close) the failure browser.
     ToggleFailures,
     /// Scan the session's case over the browser's scope at the session's perturbation.

@@ -78,6 +78,7 @@ impl MlodApp {
                     }
                 }
                 Action::OpenModels(dir) => self.open_models(dir, now),
+                Action::GateChanged => self.reload_detectors(),
                 Action::FocusSelection => self.focus_selection(),
                 Action::Recolor => self.needs_color = true,
                 Action::RunDetector => self.run_detector(),

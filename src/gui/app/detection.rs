@@ -67,6 +67,7 @@ impl MlodApp {
             case,
             cached: self.detectors.get(&case).cloned(),
             models: self.models_dir.clone(),
+            gate: self.gate_choice(),
             compare,
         }
     }
@@ -81,7 +82,7 @@ impl MlodApp {
         out: DetectOutput,
         millis: f64,
     ) -> Option<DetectionView> {
-        if out.models != self.models_dir {
+        if out.models != self.models_dir || out.gate != self.gate_choice() {
             // Loaded from the folder the window had before File > Open models folder…: neither
             // shown nor kept (the switch ran the case again).
             return None;

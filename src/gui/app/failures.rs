@@ -101,7 +101,8 @@ impl MlodApp {
             b.scanning = Some((case, cfg.params.perturbation.alpha, cfg.params.perturbation.seed));
         }
         let models = self.models_dir.clone();
-        self.jobs.scan(id, dataset, models, cfg, done, cancel);
+        self.jobs
+            .scan(id, dataset, (models, self.gate_choice()), cfg, done, cancel);
     }
 
     /// Stops the scan in flight (its result is dropped).

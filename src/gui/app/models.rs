@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use super::MlodApp;
-use crate::detect::ground_gate::manifest_gate;
+use crate::detect::ground_gate::{manifest_gate, GateChoice};
 use crate::detect::weights::Manifest;
 
 impl MlodApp {
@@ -22,13 +22,29 @@ impl MlodApp {
         self.session.models = Some(dir.clone());
         self.loaded.models = dir.clone();
         self.loaded.ground_gate_m = manifest_gate(&dir);
-        self.detectors.clear();
         if let Some(ds) = self.loaded.dataset.clone() {
             self.loaded.depth_notes.clear();
             self.jobs
                 .depth_notes(self.session.dataset.clone(), ds, dir.clone());
         }
         self.toast(now, format!("detectors from {}", dir.display()), false);
+        self.reload_detectors();
+    }
+
+    /// The ground gate the stage-1 cases run behind: the models folder's, unless the Detection
+    /// panel switched it off.
+    pub(super) fn gate_choice(&self) -> GateChoice {
+        if self.session.detection.ground_gate {
+            GateChoice::Manifest
+        } else {
+            GateChoice::Off
+        }
+    }
+
+    /// The models folder or the ground gate changed: the detectors load again, and a detection on
+    /// screen (or in flight) runs again.
+    pub fn reload_detectors(&mut self) {
+        self.detectors.clear();
         let shown = self.loaded.detection.is_some() || self.loaded.detection_b.is_some();
         if shown || self.loaded.detecting {
             self.run_detector();

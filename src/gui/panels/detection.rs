@@ -56,13 +56,18 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     }
     models_row(p, ui);
     compare_row(p, ui);
-    if ui
-        .button("failure cases…")
-        .on_hover_text("Scan this case over the scene or the dataset and list its worst samples and boxes")
-        .clicked()
-    {
-        p.act(Action::ToggleFailures);
-    }
+    ui.horizontal_wrapped(|ui| {
+        if ui
+            .button("failure cases…")
+            .on_hover_text(
+                "Scan this case over the scene or the dataset and list its worst samples and boxes",
+            )
+            .clicked()
+        {
+            p.act(Action::ToggleFailures);
+        }
+        models_label(p, ui);
+    });
     let d = &mut p.session.detection;
     let mlod = d.case.is_mlod();
     ui.checkbox(&mut d.auto_run, "run again on every change")
@@ -141,13 +146,6 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 }
             });
             compare_lines(p, ui, c);
-            if let (Some(m), false) = (p.loaded.ground_gate_m, v.case.is_mlod()) {
-                ui.label(RichText::new(format!("ground gate {m} m (models folder)")).weak())
-                    .on_hover_text(
-                        "Boxes whose bottom lies more than this above the ground around them were \
-                         dropped (mlod train tune-gate; --ground-gate off in the CLI shows them)",
-                    );
-            }
             if refined {
                 proposal_line(ui, &v.proposal_counts(min_score));
             }
@@ -268,20 +266,35 @@ fn compare_lines(p: &Panels<'_>, ui: &mut egui::Ui, a: DetectionCounts) {
     );
 }
 
-/// The models folder the detectors run from, and on a one-LiDAR sample with the shipped models
-/// (real roof-LiDAR data, most likely) the candidate trained for transfer, one click away.
-fn models_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    let dir = p.loaded.models.clone();
-    let shown = dir
-        .strip_prefix(env!("CARGO_MANIFEST_DIR"))
-        .unwrap_or(&dir)
-        .display()
-        .to_string();
-    ui.label(RichText::new(format!("models: {shown}")).weak())
+/// The models folder the detectors run from (beside the failure-cases button).
+fn models_label(p: &Panels<'_>, ui: &mut egui::Ui) {
+    let dir = &p.loaded.models;
+    let shown = dir.strip_prefix(env!("CARGO_MANIFEST_DIR")).unwrap_or(dir);
+    ui.label(RichText::new(format!("models: {}", shown.display())).weak())
         .on_hover_text(format!(
             "{}\nFile > Open models folder… runs the detectors from another folder",
             dir.display()
         ));
+}
+
+/// The models folder's ground gate, switchable, and on a one-LiDAR sample with the shipped
+/// models (real roof-LiDAR data, most likely) the candidate trained for transfer, one click away.
+fn models_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    let dir = p.loaded.models.clone();
+    if let (Some(m), false) = (p.loaded.ground_gate_m, p.session.detection.case.is_mlod()) {
+        let gate = &mut p.session.detection.ground_gate;
+        if ui
+            .checkbox(gate, format!("ground gate {m} m (models folder)"))
+            .on_hover_text(
+                "Drop boxes whose bottom lies more than this above the ground around them \
+                 (mlod train tune-gate chose it); off shows what it drops (--ground-gate off in \
+                 the CLI)",
+            )
+            .changed()
+        {
+            p.act(Action::GateChanged);
+        }
+    }
     let shipped = default_models_dir();
     let transfer = shipped.join(TRANSFER_MODELS);
     let one_lidar = p.loaded.frame.as_ref().is_some_and(|f| f.is_single_lidar());
