@@ -83,8 +83,9 @@ impl MlodApp {
         millis: f64,
     ) -> Option<DetectionView> {
         if out.models != self.models_dir || out.gate != self.gate_choice() {
-            // Loaded from the folder the window had before File > Open models folder…: neither
-            // shown nor kept (the switch ran the case again).
+            // Loaded from the folder (or with the ground gate) the window had before File > Open
+            // models folder… or the gate's checkbox: neither shown nor kept (the switch ran the
+            // case again).
             return None;
         }
         let frame = self.loaded.frame.as_deref().filter(|f| f.sample_token == token);
