@@ -919,17 +919,30 @@ fn mlod_cases_without_or_with_a_corrupt_refiner_fail_naming_the_file() {
         "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = mlod(&[
-        "analyze",
-        "active-points",
-        "--dataset",
-        data,
-        "--case",
-        "input",
-        "--out",
-        models,
-    ]);
+    let analyze = |case: &str, extra: &[&str]| {
+        let base = [
+            "analyze",
+            "active-points",
+            "--dataset",
+            data,
+            "--case",
+            case,
+            "--out",
+            models,
+        ];
+        mlod(&[&base[..], extra].concat())
+    };
+    let out = analyze("input", &[]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("MLOD case"));
+    // Flags that cannot change active points are refused, not ignored.
+    for (flag, value) in [("--ground-gate", "0.5"), ("--set-intensity", "0")] {
+        let out = analyze("mlod-i", &[flag, value]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(flag) && !err.contains("panicked"),
+            "{err}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -1637,5 +1650,37 @@ fn a_refiner_of_chosen_widths_trains_and_loads_and_bad_widths_are_refused() {
         (r.config.point_mlp.as_slice(), r.config.head.as_slice()),
         ([8, 16].as_slice(), [16].as_slice())
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn analyze_takes_the_drop_threshold_of_a_drop_case() {
+    // `mlod-i-drop` at α = 0.1: its proposals come from Input Fusion on the points under the
+    // threshold, so another --drop-trace gives the refiner other proposals to look at.
+    let dir = std::env::temp_dir().join(format!("mlod-analyze-drop-{}", std::process::id()));
+    let csv = |trace: &str| {
+        let out_dir = dir.join(trace);
+        let out = out_dir.to_str().unwrap();
+        let args = [
+            "analyze",
+            "active-points",
+            "--dataset",
+            "sample_data",
+            "--case",
+            "mlod-i-drop",
+            "--alpha",
+            "0.1",
+            "--samples",
+            "1",
+            "--drop-trace",
+            trace,
+            "--out",
+            out,
+        ];
+        let o = mlod(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read_to_string(out_dir.join("active_points.csv")).unwrap()
+    };
+    assert_ne!(csv("0.1"), csv("0.005"));
     let _ = std::fs::remove_dir_all(&dir);
 }

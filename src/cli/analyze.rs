@@ -42,8 +42,17 @@ pub fn analyze(cmd: AnalyzeCommand) -> Result<()> {
                     a.case
                 );
             }
+            // What the refiner sees is measured before any gate, on the points as read: refuse
+            // the flags that would change nothing here rather than ignore them.
+            if a.run.ground_gate != mlod::detect::ground_gate::GateChoice::Manifest {
+                bail!("--ground-gate does not apply to active points: a gate drops boxes after the refiner has seen its points");
+            }
+            if a.run.set_intensity.is_some() {
+                bail!("--set-intensity does not apply to active points (the refiner's points are counted as read)");
+            }
             let dataset = super::open_dataset(&a.dataset)?;
-            let mlod_det = mlod::refine::load_mlod(&a.run.models_dir(), a.case, a.run.vote_iou)?;
+            let mlod_det =
+                mlod::refine::load_mlod_with(&a.run.models_dir(), a.case, a.run.vote_iou, a.run.drop_trace)?;
             let params = a.run.fuse_params()?;
             let rows = active_points(&dataset, &mlod_det, &params, a.samples)?;
             if rows.is_empty() {
