@@ -226,3 +226,32 @@ fn failures_load_the_detector_as_detect_does() {
     let v2 = ["--models", "assets/models/v2"];
     assert_ne!(scan(&v2), scan(&[&v2[..], &["--set-intensity", "0"]].concat()));
 }
+
+#[test]
+fn one_lidar_data_with_the_shipped_models_points_at_the_transfer_candidate() {
+    let hint = |args: &[&str]| {
+        let out = mlod(args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stderr).contains("transfers better with --models")
+    };
+    let kitti = [
+        "detect",
+        "--dataset",
+        "tests/fixtures/kitti",
+        "--case",
+        "top",
+        "--json",
+    ];
+    assert!(hint(&kitti), "real KITTI frames, shipped models");
+    assert!(!hint(
+        &[&kitti[..], &["--models", "assets/models/v6-walls"]].concat()
+    ));
+    assert!(!hint(&[
+        "detect",
+        "--dataset",
+        "sample_data",
+        "--case",
+        "top",
+        "--json"
+    ]));
+}

@@ -7,15 +7,12 @@ use eframe::egui;
 use egui::{Color32, RichText};
 
 use super::Panels;
-use crate::detect::weights::default_models_dir;
+use crate::detect::weights::{transfer_hint, TRANSFER_MODELS};
 use crate::detect::Case;
 use crate::gui::state::{
     color32, Action, DetectionCounts, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR, REFINED_COLOR,
     REFINED_FALSE_POSITIVE_COLOR,
 };
-
-/// The shipped candidate for real roof LiDARs (a folder of `assets/models`).
-const TRANSFER_MODELS: &str = "v6-walls";
 
 pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     let mut run = false;
@@ -295,10 +292,8 @@ fn models_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             p.act(Action::GateChanged);
         }
     }
-    let shipped = default_models_dir();
-    let transfer = shipped.join(TRANSFER_MODELS);
-    let one_lidar = p.loaded.frame.as_ref().is_some_and(|f| f.is_single_lidar());
-    if one_lidar && dir == shipped && transfer.join("manifest.json").is_file() {
+    let lidars = p.loaded.frame.as_ref().map_or(0, |f| f.lidars().count());
+    if let Some(transfer) = transfer_hint(&dir, lidars) {
         ui.horizontal_wrapped(|ui| {
             ui.label(
                 RichText::new("one LiDAR here: on a real roof LiDAR, LiDAR-Top transfers better from")
