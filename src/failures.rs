@@ -160,9 +160,7 @@ fn scan_sample(
 ) -> Result<SampleFailures, DetectError> {
     let mut frame = dataset.frame(token)?;
     if let Some(v) = cfg.set_intensity {
-        for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
-            scan.points.intensity.fill(v);
-        }
+        frame.set_intensity(v);
     }
     let categories = detector.categories();
     let gt_boxes: Vec<&crate::dataset::GtBox> = frame
@@ -281,12 +279,10 @@ pub fn scan(
     check(cfg)?;
     // The models folder's decoding: box voting and, for stage-1 cases, `gate` (its ground gate
     // with `GateChoice::Manifest`).
-    let detector = crate::refine::load_detector(models, cfg.case, crate::detect::model::Voting::Manifest)
-        .and_then(|d| crate::detect::ground_gate::gated(d, gate, models))
-        .map_err(|source| ScanError::Sample {
-            token: "(loading the detector)".into(),
-            source,
-        })?;
+    let detector = crate::refine::load_gated(models, cfg.case, gate).map_err(|source| ScanError::Sample {
+        token: "(loading the detector)".into(),
+        source,
+    })?;
     scan_with(dataset, detector.as_ref(), cfg, cancel, progress)
 }
 

@@ -66,9 +66,7 @@ impl DetectorRun {
     /// `--set-intensity`: every LiDAR's intensities replaced.
     pub fn apply_intensity(&self, frame: &mut mlod::dataset::Frame) {
         if let Some(v) = self.set_intensity {
-            for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
-                scan.points.intensity.fill(v);
-            }
+            frame.set_intensity(v);
         }
     }
     /// The detector of `case` from the models folder, with the decoding asked for.

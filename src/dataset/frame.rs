@@ -211,6 +211,14 @@ impl Frame {
         self.lidars().find(|l| l.info.channel == channel)
     }
 
+    /// Every LiDAR's intensities replaced by `v` (`--set-intensity`: real Lyft files hold 100
+    /// everywhere).
+    pub fn set_intensity(&mut self, v: f32) {
+        for scan in std::iter::once(&mut self.primary).chain(self.auxiliaries.iter_mut()) {
+            scan.points.intensity.fill(v);
+        }
+    }
+
     /// Only LIDAR_TOP.
     pub fn is_single_lidar(&self) -> bool {
         self.auxiliaries.is_empty()

@@ -204,9 +204,7 @@ pub fn resolve(choice: GateChoice, dir: &std::path::Path, case: Case) -> Option<
 pub fn manifest_gate(dir: &std::path::Path) -> Option<f32> {
     super::weights::Manifest::load(dir)
         .ok()
-        .and_then(|m| m.ground_gate)
-        .and_then(|g| g.max_lift_m)
-        .map(|v| v as f32)
+        .and_then(|m| m.ground_gate_m())
 }
 
 /// `inner` behind the gate `choice` gives its case in the models folder `dir`.

@@ -286,6 +286,14 @@ pub struct VoteTuning {
 }
 
 impl Manifest {
+    /// The ground gate it records for its stage-1 cases (m; `mlod train tune-gate`), if any.
+    pub fn ground_gate_m(&self) -> Option<f32> {
+        self.ground_gate
+            .as_ref()
+            .and_then(|g| g.max_lift_m)
+            .map(|v| v as f32)
+    }
+
     pub const FILE: &'static str = "manifest.json";
 
     /// Reads `dir/manifest.json`.
@@ -384,7 +392,6 @@ pub(crate) fn file_name_of(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// The default model folder: `assets/models` of the crate.
 /// The shipped candidate for real roof LiDARs, a folder of the shipped models
 /// (docs/realism.md#walls-at-the-curb).
 pub const TRANSFER_MODELS: &str = "v6-walls";
@@ -399,6 +406,7 @@ pub fn transfer_hint(models: &Path, lidars: usize) -> Option<PathBuf> {
     (lidars == 1 && models == shipped && candidate.join(Manifest::FILE).is_file()).then_some(candidate)
 }
 
+/// The default model folder: `assets/models` of the crate.
 pub fn default_models_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("assets")

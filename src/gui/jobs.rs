@@ -10,8 +10,8 @@ use std::sync::Arc;
 
 use crate::calib::{Calibration, IcpConfig, OcPrior};
 use crate::dataset::{Dataset, Frame, SampleSummary};
-use crate::detect::ground_gate::{gated, GateChoice};
-use crate::detect::model::{load_detector, Voting};
+use crate::detect::ground_gate::GateChoice;
+use crate::detect::model::Voting;
 use crate::detect::{Case, Detection, Detector};
 use crate::pipeline::FuseParams;
 use crate::refine::{load_mlod, Mlod, Refined};
@@ -33,15 +33,9 @@ impl LoadedDetector {
             let m = load_mlod(models, case, Voting::Manifest).map_err(|e| e.to_string())?;
             return Ok(Self::Mlod(Arc::new(m)));
         }
-        let d = if case.dropped().is_some() {
-            crate::refine::load_detector(models, case, Voting::Manifest)
-        } else {
-            load_detector(models, case)
-        };
-        // The models folder's ground gate (`mlod train tune-gate`), as `mlod detect` applies it.
-        let d = d
-            .and_then(|d| gated(d, gate, models))
-            .map_err(|e| e.to_string())?;
+        // Behind the models folder's ground gate (`mlod train tune-gate`) unless switched off, as
+        // `mlod detect` applies it.
+        let d = crate::refine::load_gated(models, case, gate).map_err(|e| e.to_string())?;
         Ok(Self::Stage1(Arc::from(d)))
     }
 

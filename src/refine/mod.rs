@@ -28,8 +28,8 @@ pub mod proposals;
 pub mod train;
 
 pub use model::{
-    load_detector, load_detector_oc, load_mlod, load_mlod_with, redecode, Decoding, Mlod, MlodRun, Refined,
-    Refiner, ScoreRule,
+    load_detector, load_detector_oc, load_gated, load_mlod, load_mlod_with, redecode, Decoding, Mlod,
+    MlodRun, Refined, Refiner, ScoreRule,
 };
 
 /// Errors of the refiner.

@@ -521,6 +521,17 @@ pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn D
     )
 }
 
+/// [`load_detector`] with the folder's voting, behind the ground gate `gate` gives its case (the
+/// folder's own for a stage-1 case with `GateChoice::Manifest`): what the window and the failure
+/// scan run.
+pub fn load_gated(
+    dir: &Path,
+    case: Case,
+    gate: crate::detect::ground_gate::GateChoice,
+) -> Result<Box<dyn Detector>, DetectError> {
+    crate::detect::ground_gate::gated(load_detector(dir, case, Voting::Manifest)?, gate, dir)
+}
+
 /// [`load_detector`] with the online calibration's settings of an (OC) case and the threshold
 /// of `input-drop`.
 pub fn load_detector_oc(

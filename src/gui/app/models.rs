@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use super::MlodApp;
-use crate::detect::ground_gate::{manifest_gate, GateChoice};
+use crate::detect::ground_gate::GateChoice;
 use crate::detect::weights::Manifest;
 
 impl MlodApp {
@@ -14,14 +14,17 @@ impl MlodApp {
     /// folder's ground gate and the dataset's notes against its training data are read again, and
     /// a detection on screen (or in flight) runs again from the new folder.
     pub fn open_models(&mut self, dir: PathBuf, now: f64) {
-        if let Err(e) = Manifest::load(&dir) {
-            self.toast(now, format!("cannot open the models folder: {e}"), true);
-            return;
-        }
+        let manifest = match Manifest::load(&dir) {
+            Ok(m) => m,
+            Err(e) => {
+                self.toast(now, format!("cannot open the models folder: {e}"), true);
+                return;
+            }
+        };
         self.models_dir = dir.clone();
         self.session.models = Some(dir.clone());
         self.loaded.models = dir.clone();
-        self.loaded.ground_gate_m = manifest_gate(&dir);
+        self.loaded.ground_gate_m = manifest.ground_gate_m();
         if let Some(ds) = self.loaded.dataset.clone() {
             self.loaded.depth_notes.clear();
             self.jobs
