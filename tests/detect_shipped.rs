@@ -45,8 +45,9 @@ struct ModelSet {
 /// and re-blessed only when sample_data/ changed: it still loads and detects bit for bit with
 /// `--models`), and the LiDAR-Top candidates for real data (issue 29): see-through glass
 /// (`assets/models/v5-glass`) and walls at the curb (`assets/models/v6-walls`), their fixtures in
-/// `detections/v5-glass` and `detections/v6-walls`.
-fn model_sets() -> [ModelSet; 4] {
+/// `detections/v5-glass` and `detections/v6-walls`, and the whole chain on the walled world
+/// (`assets/models/v6w`, fixtures in `detections/v6w`).
+fn model_sets() -> [ModelSet; 5] {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
     let root = default_models_dir();
     [
@@ -73,6 +74,12 @@ fn model_sets() -> [ModelSet; 4] {
             fixtures: fixtures.join("v6-walls"),
             shipped: false,
             min_pairs: 2,
+        },
+        ModelSet {
+            models: root.join("v6w"),
+            fixtures: fixtures.join("v6w"),
+            shipped: false,
+            min_pairs: 16,
         },
     ]
 }
@@ -246,26 +253,19 @@ fn the_curb_walls_candidate_records_its_recipe() {
     assert!(gate.validation.contains_key("1") && !gate.validation.contains_key("0.3"));
 }
 
-#[test]
-fn shipped_models_carry_the_v4_transfer_recipe() {
-    // v4 (issue 29): every stage-1 model trained from scratch on the sensor-randomised simulator
-    // with the transfer augmentation and without intensity (scripts/train-v4.sh); the cases
-    // beyond the paper fine-tuned from its Input Fusion under drift (scripts/train-beyond.sh).
-    let dir = default_models_dir();
-    let Ok(m) = Manifest::load(&dir) else {
-        return;
-    };
+/// A complete chain trained by scripts/train-v4.sh and scripts/train-beyond.sh on `dataset`:
+/// every stage-1 model from scratch with the transfer augmentation and without intensity, the
+/// cases beyond the paper fine-tuned from its Input Fusion under drift, both refiners on the same
+/// data, each model's test figures recorded. Returns the manifest.
+fn assert_transfer_chain(dir: &Path, dataset: &str) -> Manifest {
+    let m = Manifest::load(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    let data = format!("--dataset {dataset}");
     for (case, entry) in &m.models {
         // Loading checks the file against the manifest's sha256.
-        load_detector(&dir, *case).unwrap_or_else(|e| panic!("{case}: {e}"));
+        load_detector(dir, *case).unwrap_or_else(|e| panic!("{case}: {e}"));
         assert_command_has(
             &entry.command,
-            &[
-                "mlod train stage1",
-                "--dataset data/v4/train",
-                "--transfer-aug",
-                "--no-intensity",
-            ],
+            &["mlod train stage1", &data, "--transfer-aug", "--no-intensity"],
         );
         if case.trains_under_drift() {
             let init = entry.init.as_ref().expect("a warm start");
@@ -273,16 +273,60 @@ fn shipped_models_carry_the_v4_transfer_recipe() {
             assert_eq!(Some(&init.sha256), m.models.get(&Case::Input).map(|e| &e.sha256));
         } else {
             assert_eq!(entry.steps, 10_000, "{case}");
-            assert!(entry.init.is_none(), "{case}: v4 trains from scratch");
+            assert!(entry.init.is_none(), "{case}: trained from scratch");
         }
         assert!(entry.test_ap.contains_key("moderate_ap3d_0.7"), "{case}");
     }
     // Trained without intensity, so the training-data notes leave intensity out.
-    assert!(!mlod::detect::weights::models_read_intensity(&dir));
+    assert!(!mlod::detect::weights::models_read_intensity(dir));
     for r in [&m.refiner, &m.refiner_notrace] {
         let r = r.as_ref().expect("both refiners ship");
-        assert!(r.command.contains("--dataset data/v4/train"), "{}", r.command);
+        assert!(r.command.contains(&data), "{}", r.command);
     }
+    m
+}
+
+#[test]
+fn shipped_models_carry_the_v4_transfer_recipe() {
+    // v4 (issue 29): every stage-1 model trained from scratch on the sensor-randomised simulator
+    // with the transfer augmentation and without intensity (scripts/train-v4.sh); the cases
+    // beyond the paper fine-tuned from its Input Fusion under drift (scripts/train-beyond.sh).
+    let dir = default_models_dir();
+    if Manifest::load(&dir).is_ok() {
+        assert_transfer_chain(&dir, "data/v4/train");
+    }
+}
+
+#[test]
+fn the_walled_chain_is_complete_and_starts_from_the_curb_walls_candidate() {
+    // assets/models/v6w: the whole chain on the see-through world with walls at the curb
+    // (docs/realism.md "v6w: the whole chain"); its LiDAR-Top is v6-walls' (seed 5), the other
+    // models trained by the same script with the same seed.
+    let dir = default_models_dir().join("v6w");
+    let m = assert_transfer_chain(&dir, "data/v6w/train");
+    let walls = Manifest::load(&default_models_dir().join("v6-walls")).unwrap();
+    assert_eq!(m.models[&Case::Top].sha256, walls.models[&Case::Top].sha256);
+    for case in [Case::Top, Case::Left, Case::Right, Case::Input, Case::Feature] {
+        assert_command_has(&m.models[&case].command, &["--seed 5", "--steps 10000"]);
+    }
+    assert_eq!(m.temperatures.len(), 3);
+    assert!(m
+        .vote
+        .as_ref()
+        .expect("voting")
+        .command
+        .contains("data/v6w/train"));
+    assert!(m.refine.is_some());
+    let gate = m
+        .ground_gate
+        .as_ref()
+        .expect("a ground gate chosen on validation");
+    assert!(
+        gate.command.contains("--dataset data/v6w/train"),
+        "{}",
+        gate.command
+    );
+    assert!(m.training_stats.is_some());
 }
 
 #[test]

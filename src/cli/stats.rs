@@ -302,7 +302,7 @@ pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     };
     if let Some(dir) = mlod::detect::weights::transfer_hint(models_dir, data.lidars.len()) {
         eprintln!(
-            "note: one LiDAR here: on a real roof LiDAR, LiDAR-Top transfers better with --models {} (docs/realism.md#walls-at-the-curb)",
+            "note: one LiDAR here: on a real roof LiDAR, LiDAR-Top transfers better with --models {} (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb)",
             dir.display()
         );
     }

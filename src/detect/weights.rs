@@ -393,8 +393,9 @@ pub(crate) fn file_name_of(path: &Path) -> String {
 }
 
 /// The shipped candidate for real roof LiDARs, a folder of the shipped models
-/// (docs/realism.md#walls-at-the-curb).
-pub const TRANSFER_MODELS: &str = "v6-walls";
+/// (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb): the whole chain trained beside
+/// walls at the curb, its LiDAR-Top the `v6-walls` candidate.
+pub const TRANSFER_MODELS: &str = "v6w";
 
 /// Where a user running `models` on data with `lidars` LiDARs should look instead: the transfer
 /// candidate, when the data has one LiDAR (real roof-LiDAR data, most likely), the models are the

@@ -243,9 +243,8 @@ fn one_lidar_data_with_the_shipped_models_points_at_the_transfer_candidate() {
         "--json",
     ];
     assert!(hint(&kitti), "real KITTI frames, shipped models");
-    assert!(!hint(
-        &[&kitti[..], &["--models", "assets/models/v6-walls"]].concat()
-    ));
+    let candidate = format!("assets/models/{}", mlod::detect::weights::TRANSFER_MODELS);
+    assert!(!hint(&[&kitti[..], &["--models", candidate.as_str()]].concat()));
     assert!(!hint(&[
         "detect",
         "--dataset",

@@ -5,6 +5,7 @@
 
 use egui_kittest::kittest::Queryable;
 use mlod::detect::ground_gate::{gated, GateChoice};
+use mlod::detect::weights::TRANSFER_MODELS;
 use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
 use mlod::session::Session;
@@ -24,7 +25,8 @@ fn cli_top(models: &std::path::Path, frame: &mlod::dataset::Frame) -> Vec<mlod::
 
 #[test]
 fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
-    let transfer = assets_models().join("v6-walls");
+    let transfer = assets_models().join(TRANSFER_MODELS);
+    let label = format!("assets/models/{TRANSFER_MODELS}");
     let (mut h, _) = harness_full(kitti_fixture(), None, None);
     assert_eq!(h.state().session().detection.case, Case::Top);
     assert!(h.query_by_label_contains("models: assets/models").is_some());
@@ -36,15 +38,13 @@ fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
     assert!(h.query_by_label_contains("ground gate").is_none());
 
     // The hint's button switches the folder and runs the case again from it.
-    h.get_by_label("assets/models/v6-walls").click();
+    h.get_by_label(&label).click();
     h.run_steps(3);
     assert_eq!(h.state().models_dir(), transfer.as_path());
     let (view, _) = h.state().detection().expect("the switch ran LiDAR-Top again");
     assert_eq!(view.detections, cli_top(&transfer, &frame));
     assert_ne!(view.detections, shipped, "another model gives other boxes");
-    assert!(h
-        .query_by_label_contains("models: assets/models/v6-walls")
-        .is_some());
+    assert!(h.query_by_label_contains(&format!("models: {label}")).is_some());
     assert!(h.query_by_label_contains("ground gate 0.5 m").is_some());
     assert!(
         h.query_by_label_contains("LiDAR-Top transfers better").is_none(),
@@ -54,7 +54,7 @@ fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
         .state()
         .toast_texts()
         .iter()
-        .any(|t| t.starts_with("detectors from") && t.ends_with("v6-walls")));
+        .any(|t| t.starts_with("detectors from") && t.ends_with(TRANSFER_MODELS)));
 
     // The session remembers the folder, and a window opened on it runs from it.
     let s = h.state().current_session();
@@ -63,9 +63,7 @@ fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
     let back: Session = serde_json::from_str(&json).unwrap();
     let (h2, _) = harness_full(kitti_fixture(), Some(back), None);
     assert_eq!(h2.state().models_dir(), transfer.as_path());
-    assert!(h2
-        .query_by_label_contains("models: assets/models/v6-walls")
-        .is_some());
+    assert!(h2.query_by_label_contains(&format!("models: {label}")).is_some());
 }
 
 #[test]
