@@ -8,6 +8,10 @@
 //! 1 m × 1 m cell within 6 m of the box's centre (BEV), and of those the 10th percentile, so a
 //! wall or hedge that fills a few cells does not lift it and a stray low point does not sink it.
 //! A box with fewer than [`MIN_CELLS`] such cells (nothing around it to judge by) is kept.
+//! Only the points of LiDARs fused where they truly are count (the primary, every LiDAR at
+//! α = 0, one placed by online calibration): a LiDAR drawn off by α or a manual offset would
+//! sink or lift the envelope and gate true cars — LiDAR-Top's boxes too, whose points are not
+//! perturbed at all.
 
 use rayon::prelude::*;
 
@@ -15,6 +19,7 @@ use super::{DetectError, Detection, Detector};
 use crate::dataset::Frame;
 use crate::detect::Case;
 use crate::pipeline::FusedCloud;
+use crate::uncertainty::ExtrinsicNoise;
 
 /// Cell size of the lower envelope (m).
 pub const CELL_M: f64 = 1.0;
@@ -68,6 +73,11 @@ impl LowerEnvelope {
                 .then(|| j as usize * dims[0] + i as usize)
         };
         let n = cloud.x.len().min(cloud.y.len()).min(cloud.z.len());
+        let trusted = trusted_lidars(cloud);
+        let counts = |p: usize| match cloud.source.get(p) {
+            Some(&s) => trusted.get(usize::from(s)).copied().unwrap_or(true),
+            None => true,
+        };
         let min_z = (0..n)
             .into_par_iter()
             .with_min_len(8192)
@@ -75,7 +85,7 @@ impl LowerEnvelope {
                 || vec![f32::INFINITY; n_cells],
                 |mut grid, p| {
                     let z = cloud.z[p];
-                    if let (Some(c), true) = (index(cloud.x[p], cloud.y[p]), z.is_finite()) {
+                    if let (Some(c), true) = (index(cloud.x[p], cloud.y[p]), z.is_finite() && counts(p)) {
                         grid[c] = grid[c].min(z);
                     }
                     grid
@@ -127,6 +137,17 @@ impl LowerEnvelope {
         let k = ((lows.len() - 1) as f64 * QUANTILE).round() as usize;
         Some(f64::from(lows[k]))
     }
+}
+
+/// Per LiDAR of `cloud`: whether its points lie where they truly are, so that they may set
+/// the ground — fused unperturbed (the primary; every LiDAR at α = 0) or placed by online
+/// calibration. A cloud that names no LiDAR is trusted whole.
+fn trusted_lidars(cloud: &FusedCloud) -> Vec<bool> {
+    cloud
+        .lidars
+        .iter()
+        .map(|l| l.calibrated || l.noise == ExtrinsicNoise::ZERO)
+        .collect()
 }
 
 /// How far each detection's bottom lies above the ground around it (m); `None` where there
@@ -314,6 +335,39 @@ mod tests {
         v.sort_by(f32::total_cmp);
         let g = f64::from(v[((v.len() - 1) as f64 * QUANTILE).round() as usize]);
         assert!((lifts[0].unwrap_or(f64::NAN) - (-1.7 - g)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_perturbed_lidar_does_not_move_the_ground() {
+        use crate::dataset::LidarChannel;
+        use crate::pipeline::FusedLidar;
+        // The street from the primary LiDAR, then a second LiDAR drawn off by α whose points
+        // lie 1 m under the road everywhere.
+        let mut c = street();
+        let n = c.x.len();
+        c.source = vec![0; n];
+        for p in 0..n {
+            let (x, y) = (c.x[p], c.y[p]);
+            c.x.push(x);
+            c.y.push(y);
+            c.z.push(-2.7);
+            c.source.push(1);
+        }
+        let mut aux = FusedLidar::identity(LidarChannel::FrontLeft, n..2 * n);
+        aux.noise = ExtrinsicNoise {
+            rho: [0.0, 0.0, -1.0],
+            phi: [0.0; 3],
+        };
+        c.lidars = vec![FusedLidar::identity(LidarChannel::Top, 0..n), aux];
+        let dets = [car(5.0, 3.0, -1.7)];
+        // Perturbed: only the primary's points count, and the car stands on the road.
+        assert!(ground_lift(&c, &dets)[0].is_some_and(|l| l.abs() < 1e-6));
+        // At α = 0 (or calibrated) the second LiDAR's points count as before: 1 m of lift.
+        c.lidars[1].noise = ExtrinsicNoise::ZERO;
+        assert!(ground_lift(&c, &dets)[0].is_some_and(|l| (l - 1.0).abs() < 1e-6));
+        c.lidars[1].noise.rho[2] = -1.0;
+        c.lidars[1].calibrated = true;
+        assert!(ground_lift(&c, &dets)[0].is_some_and(|l| (l - 1.0).abs() < 1e-6));
     }
 
     #[test]
