@@ -302,9 +302,9 @@ fn models_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             if ui
                 .button(format!("assets/models/{TRANSFER_MODELS}"))
                 .on_hover_text(
-                    "The LiDAR-Top trained beside walls at the curb, with see-through glass, \
-                     behind a ground gate: 3 of 3 KITTI cars found against 2 of 3 \
-                     (docs/realism.md#walls-at-the-curb); only LiDAR-Top is in it",
+                    "The whole chain trained beside walls at the curb, with see-through glass, \
+                     its stage-1 cases behind a ground gate: LiDAR-Top finds 3 of 3 KITTI cars \
+                     against 2 of 3 (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb)",
                 )
                 .clicked()
             {
