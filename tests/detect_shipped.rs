@@ -1,8 +1,9 @@
-//! The shipped stage-1 weights (`assets/models/`) reproduce the committed detections on two
-//! sample_data frames bit for bit, for every case the manifest lists (Result Fusion when its three
-//! generators are there). `MLOD_BLESS=1 cargo test --test detect_shipped` rewrites the fixtures
-//! after a deliberate change of the weights; `MLOD_BLESS=all` also the older set's, after a change
-//! of sample_data/ (issue 29 regenerated it; the older weights themselves never change).
+//! The shipped weights (`assets/models/`) and the older sets kept beside them reproduce the
+//! committed detections on two sample_data frames bit for bit, for every case their manifest
+//! lists (Result Fusion when its three generators are there). `MLOD_BLESS=1 cargo test --test
+//! detect_shipped` rewrites the shipped set's fixtures after a deliberate change of the weights;
+//! `MLOD_BLESS=all` also the older sets', after a change of sample_data/ (issue 29 regenerated it;
+//! the older weights themselves never change).
 
 use std::path::Path;
 
@@ -33,54 +34,44 @@ fn assert_command_has(command: &str, parts: &[&str]) {
 struct ModelSet {
     models: std::path::PathBuf,
     fixtures: std::path::PathBuf,
-    /// The shipped set: the only one whose fixtures `MLOD_BLESS` rewrites, and the only one
-    /// with fixtures for the cases beyond the paper.
+    /// The shipped set: the only one whose fixtures `MLOD_BLESS=1` rewrites.
     shipped: bool,
+    /// Its fixtures hold the refinements of the cases beyond the paper (issue 32) too.
+    beyond: bool,
     /// At least this many (case, frame) pairs are checked.
     min_pairs: usize,
 }
 
-/// The shipped set (`assets/models`, fixtures in `tests/fixtures/detections`) and the older set
-/// kept beside it (`assets/models/v2`, its fixtures in `detections/v2`, committed when v2 shipped
-/// and re-blessed only when sample_data/ changed: it still loads and detects bit for bit with
-/// `--models`), and the LiDAR-Top candidates for real data (issue 29): see-through glass
-/// (`assets/models/v5-glass`) and walls at the curb (`assets/models/v6-walls`), their fixtures in
-/// `detections/v5-glass` and `detections/v6-walls`, and the whole chain on the walled world
-/// (`assets/models/v6w`, fixtures in `detections/v6w`).
+/// The shipped set (`assets/models`, fixtures in `tests/fixtures/detections`): since issue 29 the
+/// whole chain trained on the see-through world with walls at the curb; the sets kept beside it,
+/// each checked against the fixtures committed when it was made (re-blessed only when sample_data/
+/// changed: they still load and detect bit for bit with `--models`): v4, the chain shipped before
+/// it (`assets/models/v4`, fixtures in `detections/v4`), v2 (`assets/models/v2`, `detections/v2`),
+/// and the LiDAR-Top candidates for real data: see-through glass (`assets/models/v5-glass`) and
+/// walls at the curb (`assets/models/v6-walls`), their fixtures in `detections/v5-glass` and
+/// `detections/v6-walls`.
 fn model_sets() -> [ModelSet; 5] {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
     let root = default_models_dir();
+    let older = |name: &str, min_pairs| ModelSet {
+        models: root.join(name),
+        fixtures: fixtures.join(name),
+        shipped: false,
+        beyond: name == "v4",
+        min_pairs,
+    };
     [
         ModelSet {
             models: root.clone(),
             fixtures: fixtures.clone(),
             shipped: true,
-            min_pairs: 12,
-        },
-        ModelSet {
-            models: root.join("v2"),
-            fixtures: fixtures.join("v2"),
-            shipped: false,
-            min_pairs: 12,
-        },
-        ModelSet {
-            models: root.join("v5-glass"),
-            fixtures: fixtures.join("v5-glass"),
-            shipped: false,
-            min_pairs: 2,
-        },
-        ModelSet {
-            models: root.join("v6-walls"),
-            fixtures: fixtures.join("v6-walls"),
-            shipped: false,
-            min_pairs: 2,
-        },
-        ModelSet {
-            models: root.join("v6w"),
-            fixtures: fixtures.join("v6w"),
-            shipped: false,
+            beyond: true,
             min_pairs: 16,
         },
+        older("v4", 16),
+        older("v2", 12),
+        older("v5-glass", 2),
+        older("v6-walls", 2),
     ]
 }
 
@@ -287,24 +278,22 @@ fn assert_transfer_chain(dir: &Path, dataset: &str) -> Manifest {
 }
 
 #[test]
-fn shipped_models_carry_the_v4_transfer_recipe() {
-    // v4 (issue 29): every stage-1 model trained from scratch on the sensor-randomised simulator
-    // with the transfer augmentation and without intensity (scripts/train-v4.sh); the cases
-    // beyond the paper fine-tuned from its Input Fusion under drift (scripts/train-beyond.sh).
-    let dir = default_models_dir();
-    if Manifest::load(&dir).is_ok() {
-        assert_transfer_chain(&dir, "data/v4/train");
-    }
+fn the_v4_chain_carries_the_transfer_recipe() {
+    // assets/models/v4, shipped before the walled chain (issue 29): every stage-1 model trained
+    // from scratch on the sensor-randomised simulator with the transfer augmentation and without
+    // intensity (scripts/train-v4.sh); the cases beyond the paper fine-tuned from its Input Fusion
+    // under drift (scripts/train-beyond.sh).
+    assert_transfer_chain(&default_models_dir().join("v4"), "data/v4/train");
 }
 
 #[test]
-fn the_walled_chain_is_complete_and_starts_from_the_curb_walls_candidate() {
-    // assets/models/v6w: the whole chain on the see-through world with walls at the curb
-    // (docs/realism.md "v6w: the whole chain"); its LiDAR-Top is v6-walls' (seed 5), the other
-    // models trained by the same script with the same seed.
-    let dir = default_models_dir().join("v6w");
+fn shipped_models_are_the_walled_chain_started_from_the_curb_walls_candidate() {
+    // The shipped chain (issue 29, docs/realism.md "v6w: the whole chain"): trained by the same
+    // scripts on the see-through world with walls at the curb; its LiDAR-Top is v6-walls' (seed
+    // 5), the other models trained with the same seed.
+    let dir = default_models_dir();
     let m = assert_transfer_chain(&dir, "data/v6w/train");
-    let walls = Manifest::load(&default_models_dir().join("v6-walls")).unwrap();
+    let walls = Manifest::load(&dir.join("v6-walls")).unwrap();
     assert_eq!(m.models[&Case::Top].sha256, walls.models[&Case::Top].sha256);
     for case in [Case::Top, Case::Left, Case::Right, Case::Input, Case::Feature] {
         assert_command_has(&m.models[&case].command, &["--seed 5", "--steps 10000"]);
@@ -399,7 +388,7 @@ fn shipped_refiner_reproduces_committed_refinements() {
         let bless = blessing(&set);
         // The paper's MLOD cases, and those beyond it whose stage-1 weights the set has (v2's
         // fixtures predate the cases beyond the paper).
-        let beyond: &[Case] = if set.shipped { &Case::BEYOND } else { &[] };
+        let beyond: &[Case] = if set.beyond { &Case::BEYOND } else { &[] };
         let cases = Case::MLOD
             .into_iter()
             .chain(beyond.iter().copied())
@@ -448,10 +437,10 @@ fn check_refinements(
 
 #[test]
 fn the_iou_scoring_refiner_candidate_records_its_recipe_and_reproduces() {
-    // assets/models/iou-refiner (issue 32): the shipped stage-1 models with a refiner whose
+    // assets/models/iou-refiner (issue 32): v4's stage-1 models with a refiner whose
     // classification head learned the IoU quality (`mlod train refiner ... --iou-score`) on a
     // database with the certain-points cases' proposals, its decoding chosen on validation.
-    let (dir, m, _) = candidate_with_shipped_stage1("iou-refiner");
+    let (dir, m, _) = candidate_with_v4_stage1("iou-refiner");
     let r = m.refiner.as_ref().expect("its refiner");
     assert_command_has(
         &r.command,
@@ -468,16 +457,16 @@ fn the_iou_scoring_refiner_candidate_records_its_recipe_and_reproduces() {
     check_candidate_refinements(&dir, "iou-refiner");
 }
 
-/// A candidate folder under assets/models holding the shipped stage-1 models: its path, its
-/// manifest and the shipped manifest.
-fn candidate_with_shipped_stage1(name: &str) -> (std::path::PathBuf, Manifest, Manifest) {
+/// A candidate folder under assets/models holding the v4 chain's stage-1 models (the refiner
+/// candidates of issue 32, made while v4 shipped): its path, its manifest and v4's manifest.
+fn candidate_with_v4_stage1(name: &str) -> (std::path::PathBuf, Manifest, Manifest) {
     let dir = default_models_dir().join(name);
     let m = Manifest::load(&dir).expect("the candidate's manifest");
-    let shipped = Manifest::load(&default_models_dir()).unwrap();
-    for (case, entry) in &shipped.models {
-        assert_eq!(m.models[case].sha256, entry.sha256, "{case}: the shipped stage 1");
+    let v4 = Manifest::load(&default_models_dir().join("v4")).unwrap();
+    for (case, entry) in &v4.models {
+        assert_eq!(m.models[case].sha256, entry.sha256, "{case}: v4's stage 1");
     }
-    (dir, m, shipped)
+    (dir, m, v4)
 }
 
 /// MLOD-I and `mlod-ir-drop` of a candidate folder reproduce tests/fixtures/detections/NAME on
@@ -549,7 +538,7 @@ fn the_six_thousand_step_refiner_stays_loadable_and_reproduces() {
     // assets/models/refiner-6k: the v4 set as first shipped, with the refiner of 6000 steps that
     // the 12 000-step one replaced (docs/robustness.md, "A third training lever"); the earlier
     // tables' MLOD figures come from it.
-    let (dir, m, shipped) = candidate_with_shipped_stage1("refiner-6k");
+    let (dir, m, shipped) = candidate_with_v4_stage1("refiner-6k");
     for (old, new) in [
         (&m.refiner, &shipped.refiner),
         (&m.refiner_notrace, &shipped.refiner_notrace),

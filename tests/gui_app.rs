@@ -288,7 +288,7 @@ fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
         .unwrap();
     assert_eq!(view.detections, want);
     // Its checkbox switches the gate off: the case runs again, and shows what the gate dropped.
-    h.get_by_label("ground gate 0.5 m (models folder)").click();
+    h.get_by_label("ground gate 0.5 m").click();
     h.run_steps(3);
     assert!(!h.state().session().detection.ground_gate);
     let ungated = mlod::detect::model::load_detector(&models, Case::Top)
@@ -298,11 +298,11 @@ fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
     let (view, _) = h.state().detection().expect("the detector ran again");
     assert_eq!(view.detections, ungated);
     assert!(ungated.len() > want.len(), "the gate drops something here");
-    h.get_by_label("ground gate 0.5 m (models folder)").click();
+    h.get_by_label("ground gate 0.5 m").click();
     h.run_steps(3);
     assert_eq!(h.state().detection().unwrap().0.detections, want);
-    // The shipped folder has no gate, and the panel says nothing of one.
-    let mut h = harness(Some(s));
+    // The v4 folder has no gate, and the panel says nothing of one.
+    let mut h = harness_with(Some(s), Some(assets_models().join("v4")));
     h.get_by_label("Run (D)").click();
     h.run_steps(3);
     assert!(h.state().detection().is_some());
@@ -820,8 +820,13 @@ fn an_oc_case_calibrates_then_detects_on_the_corrected_cloud() {
     let (view, counts) = app.detection().expect("the (OC) case ran");
     assert_eq!(view.case, Case::InputOc);
     assert!(!app.detection_is_stale());
-    // Its boxes are the library's Input Fusion (OC) boxes on this frame.
-    let det = mlod::refine::load_detector(&assets_models(), Case::InputOc, Voting::Manifest).unwrap();
+    // Its boxes are the library's Input Fusion (OC) boxes on this frame, behind the folder's gate.
+    let det = mlod::refine::load_gated(
+        &assets_models(),
+        Case::InputOc,
+        mlod::detect::ground_gate::GateChoice::Manifest,
+    )
+    .unwrap();
     let lib = det.detect(app.frame().unwrap(), &app.session().fuse).unwrap();
     assert_eq!(view.detections, lib);
     assert!(counts.true_positives > 0, "{counts:?}");
@@ -1177,8 +1182,14 @@ fn compare_mode_runs_two_cases_on_the_same_frame_counted_like_eval() {
     let (a, ca) = h.state().detection().expect("Input Fusion ran");
     let (b, cb) = h.state().compare_detection().expect("MLOD-I ran beside it");
     assert_eq!((a.case, b.case), (Case::Input, Case::MlodI));
-    // Both on the same perturbed frame: MLOD-I's proposals are Input Fusion's boxes.
-    assert_eq!(b.detections, a.detections);
+    // Both on the same perturbed frame: MLOD-I's proposals are Input Fusion's boxes before the
+    // folder's ground gate (the gate is for stage-1 cases), so Input Fusion's are among them.
+    let ungated = mlod::refine::load_detector(&models, Case::Input, Voting::Manifest)
+        .unwrap()
+        .detect(h.state().frame().unwrap(), &h.state().session().fuse)
+        .unwrap();
+    assert_eq!(b.detections, ungated);
+    assert!(a.detections.iter().all(|d| ungated.contains(d)));
     let run = load_mlod(&models, Case::MlodI, Voting::Manifest)
         .unwrap()
         .run(h.state().frame().unwrap(), &h.state().session().fuse)

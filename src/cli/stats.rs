@@ -300,12 +300,6 @@ pub fn print_training_notes(dataset: &Dataset, models_dir: &Path) {
     let Ok(data) = mlod::dataset::summarize(dataset, NOTE_SAMPLES) else {
         return;
     };
-    if let Some(dir) = mlod::detect::weights::transfer_hint(models_dir, data.lidars.len()) {
-        eprintln!(
-            "note: one LiDAR here: on a real roof LiDAR, LiDAR-Top transfers better with --models {} (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb)",
-            dir.display()
-        );
-    }
     let notes = mlod::detect::weights::training_notes(models_dir, &data);
     if notes.is_empty() {
         return;

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use super::{DetectError, Detection, Detector};
 use crate::dataset::Frame;
 use crate::detect::Case;
-use crate::pipeline::FusedCloud;
+use crate::pipeline::{FuseParams, FusedCloud};
 use crate::uncertainty::ExtrinsicNoise;
 
 /// Cell size of the lower envelope (m).
@@ -260,6 +260,10 @@ impl Detector for GroundGate {
 
     fn categories(&self) -> Vec<String> {
         self.inner.categories()
+    }
+
+    fn fuse_params(&self, frame: &Frame, params: &FuseParams) -> Result<FuseParams, DetectError> {
+        self.inner.fuse_params(frame, params)
     }
 
     fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {

@@ -638,9 +638,18 @@ pub trait Detector: Send + Sync {
     /// fuses once.
     fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError>;
 
-    /// Fuses the frame with `params` (so perturbations reach the auxiliary LiDARs) and detects.
+    /// The parameters [`Detector::detect`] fuses `frame` with: `params` itself, or for an (OC)
+    /// case `params` with the online calibration in them. A detector wrapping another passes
+    /// this on, so that a wrapped (OC) case still detects on its calibrated cloud.
+    fn fuse_params(&self, frame: &Frame, params: &FuseParams) -> Result<FuseParams, DetectError> {
+        let _ = frame;
+        Ok(params.clone())
+    }
+
+    /// Fuses the frame with [`Detector::fuse_params`] (so perturbations reach the auxiliary
+    /// LiDARs) and detects.
     fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
-        let cloud = crate::pipeline::fuse(frame, params)?;
+        let cloud = crate::pipeline::fuse(frame, &self.fuse_params(frame, params)?)?;
         self.detect_fused(frame, &cloud)
     }
 }

@@ -4,7 +4,7 @@
 
 use crate::calib::{IcpConfig, OcPrior};
 use crate::dataset::Frame;
-use crate::pipeline::{calibrate, fuse, FuseParams, FusedCloud};
+use crate::pipeline::{calibrate, FuseParams, FusedCloud};
 
 use super::{Case, DetectError, Detection, Detector};
 
@@ -74,9 +74,7 @@ impl Detector for OcDetector {
         self.inner.detect_fused(frame, cloud)
     }
 
-    fn detect(&self, frame: &Frame, params: &FuseParams) -> Result<Vec<Detection>, DetectError> {
-        let p = self.calibrated_params(frame, params)?;
-        let cloud = fuse(frame, &p)?;
-        self.inner.detect_fused(frame, &cloud)
+    fn fuse_params(&self, frame: &Frame, params: &FuseParams) -> Result<FuseParams, DetectError> {
+        self.calibrated_params(frame, params)
     }
 }

@@ -392,21 +392,6 @@ pub(crate) fn file_name_of(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// The shipped candidate for real roof LiDARs, a folder of the shipped models
-/// (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb): the whole chain trained beside
-/// walls at the curb, its LiDAR-Top the `v6-walls` candidate.
-pub const TRANSFER_MODELS: &str = "v6w";
-
-/// Where a user running `models` on data with `lidars` LiDARs should look instead: the transfer
-/// candidate, when the data has one LiDAR (real roof-LiDAR data, most likely), the models are the
-/// shipped ones and the candidate is there. What the window's Detection panel offers and `mlod
-/// detect` / `eval` note.
-pub fn transfer_hint(models: &Path, lidars: usize) -> Option<PathBuf> {
-    let shipped = default_models_dir();
-    let candidate = shipped.join(TRANSFER_MODELS);
-    (lidars == 1 && models == shipped && candidate.join(Manifest::FILE).is_file()).then_some(candidate)
-}
-
 /// The default model folder: `assets/models` of the crate.
 pub fn default_models_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

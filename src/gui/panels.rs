@@ -165,7 +165,7 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     .button("Open models folder…")
                     .on_hover_text(
                         "Run the detectors from another folder of weights with its manifest.json \
-                         (a candidate such as assets/models/v6w for real roof LiDARs, or your own)",
+                         (an older set such as assets/models/v4, or your own)",
                     )
                     .clicked()
                 {

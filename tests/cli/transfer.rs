@@ -89,12 +89,14 @@ fn ground_gate_drops_only_floating_boxes_and_refuses_absurd_gates() {
             .cloned()
             .unwrap_or_default()
     };
-    let all = boxes(&[]);
+    let all = boxes(&["--ground-gate", "off"]);
     let (wide, half, tiny) = (
         boxes(&["--ground-gate", "5"]),
         boxes(&["--ground-gate", "0.5"]),
         boxes(&["--ground-gate", "0.01"]),
     );
+    // The shipped folder records a 0.5 m gate (`mlod train tune-gate`): the default applies it.
+    assert_eq!(boxes(&[]), half);
     let confident = |v: &[serde_json::Value]| {
         v.iter()
             .filter(|d| d["score"].as_f64().unwrap_or(0.0) >= 0.3)
@@ -228,29 +230,24 @@ fn failures_load_the_detector_as_detect_does() {
 }
 
 #[test]
-fn one_lidar_data_with_the_shipped_models_points_at_the_transfer_candidate() {
-    let hint = |args: &[&str]| {
-        let out = mlod(args);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        String::from_utf8_lossy(&out.stderr).contains("transfers better with --models")
-    };
-    let kitti = [
-        "detect",
+fn the_shipped_lidar_top_on_the_real_fixture_frames_keeps_false_positives_low() {
+    // Issue 29's false-positive goal on the two committed KITTI frames (tests/fixtures/kitti:
+    // no car within 50 m in camera 2's view, so nothing to find): the shipped LiDAR-Top, trained
+    // on the simulator only, makes at most 0.5 confident false positives per frame, and the same
+    // with every intensity at 100 (as real Lyft files hold it): it does not read intensity.
+    let base = [
+        "eval",
         "--dataset",
         "tests/fixtures/kitti",
         "--case",
         "top",
+        "--transfer",
         "--json",
     ];
-    assert!(hint(&kitti), "real KITTI frames, shipped models");
-    let candidate = format!("assets/models/{}", mlod::detect::weights::TRANSFER_MODELS);
-    assert!(!hint(&[&kitti[..], &["--models", candidate.as_str()]].concat()));
-    assert!(!hint(&[
-        "detect",
-        "--dataset",
-        "sample_data",
-        "--case",
-        "top",
-        "--json"
-    ]));
+    let report = |extra: &[&str]| json(&[&base[..], extra].concat())["transfer"].clone();
+    let (t, t100) = (report(&[]), report(&["--set-intensity", "100"]));
+    assert_eq!(t, t100);
+    assert_eq!(t["frames"], 2, "{t}");
+    let fp = t["confident_false_positives_per_frame"].as_f64().unwrap();
+    assert!(fp <= 0.5, "{t}");
 }

@@ -1,11 +1,10 @@
 //! File > Open models folder…: the window switches its detectors to another folder (and says
-//! which), offers the candidate trained for transfer on one-LiDAR (real) samples, refuses a
-//! folder whose manifest does not load without losing what is on screen, and a saved session
-//! reopens on the folder it used.
+//! which), refuses a folder whose manifest does not load without losing what is on screen, and a
+//! saved session reopens on the folder it used. On one-LiDAR (real) samples the shipped chain
+//! runs behind its ground gate.
 
 use egui_kittest::kittest::Queryable;
 use mlod::detect::ground_gate::{gated, GateChoice};
-use mlod::detect::weights::TRANSFER_MODELS;
 use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
 use mlod::session::Session;
@@ -24,9 +23,8 @@ fn cli_top(models: &std::path::Path, frame: &mlod::dataset::Frame) -> Vec<mlod::
 }
 
 #[test]
-fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
-    let transfer = assets_models().join(TRANSFER_MODELS);
-    let label = format!("assets/models/{TRANSFER_MODELS}");
+fn a_one_lidar_sample_runs_the_shipped_chain_and_another_folder_takes_over() {
+    let v4 = assets_models().join("v4");
     let (mut h, _) = harness_full(kitti_fixture(), None, None);
     assert_eq!(h.state().session().detection.case, Case::Top);
     assert!(h.query_by_label_contains("models: assets/models").is_some());
@@ -34,36 +32,36 @@ fn a_one_lidar_sample_offers_the_transfer_models_and_the_switch_runs_them() {
     h.run_steps(3);
     let frame = h.state().frame().unwrap().clone();
     let shipped = h.state().detection().expect("LiDAR-Top ran").0.detections.clone();
+    // The shipped chain runs behind its ground gate, as `mlod detect` runs it.
     assert_eq!(shipped, cli_top(&assets_models(), &frame));
-    assert!(h.query_by_label_contains("ground gate").is_none());
-
-    // The hint's button switches the folder and runs the case again from it.
-    h.get_by_label(&label).click();
-    h.run_steps(3);
-    assert_eq!(h.state().models_dir(), transfer.as_path());
-    let (view, _) = h.state().detection().expect("the switch ran LiDAR-Top again");
-    assert_eq!(view.detections, cli_top(&transfer, &frame));
-    assert_ne!(view.detections, shipped, "another model gives other boxes");
-    assert!(h.query_by_label_contains(&format!("models: {label}")).is_some());
     assert!(h.query_by_label_contains("ground gate 0.5 m").is_some());
-    assert!(
-        h.query_by_label_contains("LiDAR-Top transfers better").is_none(),
-        "the hint is gone once the candidate is in use"
-    );
+
+    // File > Open models folder… switches the folder and runs the case again from it.
+    h.state_mut().open_models(v4.clone(), 0.0);
     assert!(h
         .state()
         .toast_texts()
         .iter()
-        .any(|t| t.starts_with("detectors from") && t.ends_with(TRANSFER_MODELS)));
+        .any(|t| t.starts_with("detectors from") && t.ends_with("v4")));
+    h.run_steps(3);
+    assert_eq!(h.state().models_dir(), v4.as_path());
+    let (view, _) = h.state().detection().expect("the switch ran LiDAR-Top again");
+    assert_eq!(view.detections, cli_top(&v4, &frame));
+    assert_ne!(view.detections, shipped, "another model gives other boxes");
+    assert!(h.query_by_label_contains("models: assets/models/v4").is_some());
+    assert!(
+        h.query_by_label_contains("ground gate").is_none(),
+        "v4 records no gate"
+    );
 
     // The session remembers the folder, and a window opened on it runs from it.
     let s = h.state().current_session();
-    assert_eq!(s.models.as_deref(), Some(transfer.as_path()));
+    assert_eq!(s.models.as_deref(), Some(v4.as_path()));
     let json = serde_json::to_string(&s).unwrap();
     let back: Session = serde_json::from_str(&json).unwrap();
     let (h2, _) = harness_full(kitti_fixture(), Some(back), None);
-    assert_eq!(h2.state().models_dir(), transfer.as_path());
-    assert!(h2.query_by_label_contains(&format!("models: {label}")).is_some());
+    assert_eq!(h2.state().models_dir(), v4.as_path());
+    assert!(h2.query_by_label_contains("models: assets/models/v4").is_some());
 }
 
 #[test]
@@ -92,7 +90,5 @@ fn a_models_folder_that_does_not_load_leaves_the_window_as_it_was() {
     h.state_mut().open_models(empty, 0.0);
     h.run_steps(2);
     assert_eq!(h.state().models_dir(), assets_models().as_path());
-    // Three LiDARs (the simulator's sample_data): no transfer hint.
-    assert!(h.query_by_label_contains("LiDAR-Top transfers better").is_none());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -218,8 +218,9 @@ fn training_follows_candle_and_stores_loadable_weights() {
         // gradient is near 0 (on the v4 sample_data one conv weight entry differs by 1.8 steps),
         // so the measure is the whole tensor's: the L2 norm of the difference against the
         // tensor's. BatchNorm biases start at 0 and have moved only 4 steps of ±lr, so a few
-        // flipped entries are a few % of their norm (2.5e-2 on the v4 sample_data); a wrong
-        // optimiser step would be off by the order of the tensor itself.
+        // flipped entries are a few % of their norm (2.5e-2 on the v4 sample_data, 6.8e-2 on the
+        // walled one), hence their looser bound; a wrong optimiser step would be off by the order
+        // of the tensor itself.
         let b = values(
             ref_opt
                 .params
@@ -230,7 +231,8 @@ fn training_follows_candle_and_stores_loadable_weights() {
                 .as_tensor(),
         );
         let e = rel_l2(&a, &b);
-        assert!(e < 5e-2, "{name}: {e:e} (max-norm {:e})", rel(&a, &b));
+        let bound = if name.ends_with("bn.bias") { 0.15 } else { 5e-2 };
+        assert!(e < bound, "{name}: {e:e} (max-norm {:e})", rel(&a, &b));
     }
     // Stored weights and moments are what a new trainer reads back (checkpoint round trip),
     // and a model written by the native path loads as a candle model.

@@ -7,7 +7,6 @@ use eframe::egui;
 use egui::{Color32, RichText};
 
 use super::Panels;
-use crate::detect::weights::{transfer_hint, TRANSFER_MODELS};
 use crate::detect::Case;
 use crate::gui::state::{
     color32, Action, DetectionCounts, FALSE_POSITIVE_COLOR, GT_COLOR, PROPOSAL_COLOR, REFINED_COLOR,
@@ -51,7 +50,6 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     {
         ui.label(RichText::new(note).color(Color32::from_rgb(230, 180, 90)));
     }
-    models_row(p, ui);
     compare_row(p, ui);
     ui.horizontal_wrapped(|ui| {
         if ui
@@ -65,10 +63,14 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         }
         models_label(p, ui);
     });
+    ui.horizontal_wrapped(|ui| {
+        let d = &mut p.session.detection;
+        ui.checkbox(&mut d.auto_run, "run again on every change")
+            .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
+        gate_checkbox(p, ui);
+    });
     let d = &mut p.session.detection;
     let mlod = d.case.is_mlod();
-    ui.checkbox(&mut d.auto_run, "run again on every change")
-        .on_hover_text("Re-run after each change of sample, α or offsets (latest change wins)");
     rematch |= ui
         .add(egui::Slider::new(&mut d.min_score, 0.05..=0.95).text("min score"))
         .changed();
@@ -274,42 +276,20 @@ fn models_label(p: &Panels<'_>, ui: &mut egui::Ui) {
         ));
 }
 
-/// The models folder's ground gate, switchable, and on a one-LiDAR sample with the shipped
-/// models (real roof-LiDAR data, most likely) the candidate trained for transfer, one click away.
-fn models_row(p: &mut Panels<'_>, ui: &mut egui::Ui) {
-    let dir = p.loaded.models.clone();
+/// The models folder's ground gate, switchable (beside "run again on every change").
+fn gate_checkbox(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     if let (Some(m), false) = (p.loaded.ground_gate_m, p.session.detection.case.is_mlod()) {
         let gate = &mut p.session.detection.ground_gate;
         if ui
-            .checkbox(gate, format!("ground gate {m} m (models folder)"))
+            .checkbox(gate, format!("ground gate {m} m"))
             .on_hover_text(
-                "Drop boxes whose bottom lies more than this above the ground around them \
-                 (mlod train tune-gate chose it); off shows what it drops (--ground-gate off in \
-                 the CLI)",
+                "The models folder's gate (mlod train tune-gate chose it): drop stage-1 boxes \
+                 whose bottom lies more than this above the ground around them; off shows what \
+                 it drops (--ground-gate off in the CLI)",
             )
             .changed()
         {
             p.act(Action::GateChanged);
         }
-    }
-    let lidars = p.loaded.frame.as_ref().map_or(0, |f| f.lidars().count());
-    if let Some(transfer) = transfer_hint(&dir, lidars) {
-        ui.horizontal_wrapped(|ui| {
-            ui.label(
-                RichText::new("one LiDAR here: on a real roof LiDAR, LiDAR-Top transfers better from")
-                    .color(Color32::from_rgb(230, 180, 90)),
-            );
-            if ui
-                .button(format!("assets/models/{TRANSFER_MODELS}"))
-                .on_hover_text(
-                    "The whole chain trained beside walls at the curb, with see-through glass, \
-                     its stage-1 cases behind a ground gate: LiDAR-Top finds 3 of 3 KITTI cars \
-                     against 2 of 3 (docs/realism.md#v6w-the-whole-chain-beside-walls-at-the-curb)",
-                )
-                .clicked()
-            {
-                p.act(Action::OpenModels(transfer));
-            }
-        });
     }
 }
