@@ -959,9 +959,9 @@ fn write_screenshot_sessions() {
         .and_then(|b| b.result.as_ref())
         .is_some());
     save(&h, "failures");
-    // The sweep window on the v4 Table II of the shipped refiner (with three rows beyond the
-    // paper), over the first sight.
-    const SWEEP: &str = "docs/sweeps/v4/table2-12k";
+    // The sweep window on the shipped chain's Table II (the walled world, 17 rows with the (OC)
+    // cases, the ablations and the cases beyond the paper), over the first sight.
+    const SWEEP: &str = "docs/sweeps/v6w/table2";
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
     h.state_mut().open_sweep(&dir.join("..").join(SWEEP)).unwrap();
     h.run_steps(2);
