@@ -400,4 +400,33 @@ mod tests {
         assert!(lifts[0].is_some_and(|l| l.abs() < 1e-6), "{lifts:?}");
         assert!(ground_lift(&c, &[]).is_empty());
     }
+
+    #[test]
+    fn the_gate_fuses_as_the_detector_it_wraps_says() {
+        // An (OC) case fuses with its calibration in the parameters: behind the gate it must
+        // still (a gated `input-oc` once fused the drifted cloud and was refused).
+        struct Marks;
+        impl Detector for Marks {
+            fn case(&self) -> Case {
+                Case::InputOc
+            }
+            fn categories(&self) -> Vec<String> {
+                vec!["car".into()]
+            }
+            fn fuse_params(&self, _: &Frame, p: &FuseParams) -> Result<FuseParams, DetectError> {
+                let mut p = p.clone();
+                p.prior_alpha = Some(0.123);
+                Ok(p)
+            }
+            fn detect_fused(&self, _: &Frame, _: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
+                Ok(Vec::new())
+            }
+        }
+        let gate = GroundGate::new(Box::new(Marks), 0.5).unwrap();
+        let ds = crate::dataset::Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
+        let p = gate.fuse_params(&frame, &FuseParams::default()).unwrap();
+        assert_eq!(p.prior_alpha, Some(0.123));
+        assert!(gate.detect(&frame, &FuseParams::default()).unwrap().is_empty());
+    }
 }
