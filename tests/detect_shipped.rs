@@ -53,11 +53,11 @@ struct ModelSet {
 fn model_sets() -> [ModelSet; 5] {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/detections");
     let root = default_models_dir();
-    let older = |name: &str, min_pairs| ModelSet {
+    let older = |name: &str, beyond, min_pairs| ModelSet {
         models: root.join(name),
         fixtures: fixtures.join(name),
         shipped: false,
-        beyond: name == "v4",
+        beyond,
         min_pairs,
     };
     [
@@ -68,10 +68,10 @@ fn model_sets() -> [ModelSet; 5] {
             beyond: true,
             min_pairs: 16,
         },
-        older("v4", 16),
-        older("v2", 12),
-        older("v5-glass", 2),
-        older("v6-walls", 2),
+        older("v4", true, 16),
+        older("v2", false, 12),
+        older("v5-glass", false, 2),
+        older("v6-walls", false, 2),
     ]
 }
 
@@ -538,14 +538,14 @@ fn the_six_thousand_step_refiner_stays_loadable_and_reproduces() {
     // assets/models/refiner-6k: the v4 set as first shipped, with the refiner of 6000 steps that
     // the 12 000-step one replaced (docs/robustness.md, "A third training lever"); the earlier
     // tables' MLOD figures come from it.
-    let (dir, m, shipped) = candidate_with_v4_stage1("refiner-6k");
+    let (dir, m, v4) = candidate_with_v4_stage1("refiner-6k");
     for (old, new) in [
-        (&m.refiner, &shipped.refiner),
-        (&m.refiner_notrace, &shipped.refiner_notrace),
+        (&m.refiner, &v4.refiner),
+        (&m.refiner_notrace, &v4.refiner_notrace),
     ] {
         let (old, new) = (
             old.as_ref().expect("old refiner"),
-            new.as_ref().expect("shipped refiner"),
+            new.as_ref().expect("v4's 12 000-step refiner"),
         );
         assert_eq!((old.steps, new.steps), (6000, 12_000));
         assert_command_has(&new.command, &["--steps 12000", "--dataset data/v4/train"]);
