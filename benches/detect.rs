@@ -112,18 +112,11 @@ fn bench_refine(c: &mut Criterion) {
     g.bench_function("50_proposals", |b| {
         b.iter(|| black_box(refiner.refine(&cloud, &proposals).expect("refine")))
     });
-    // MLOD-I, the proposal union of issue 32 (two stage-1 networks, the refiner on both
-    // proposal lists, NMS and voting after it), mlod-i-drop (the uncertain points dropped before
-    // stage 1, the refiner on every point), mlod-r-drop (Result Fusion's three networks on the
-    // certain points) and the chosen case mlod-ir-drop (Result and Input Fusion on the certain
-    // points, four networks, their proposals refined together): whole runs, fuse included.
-    for case in [
-        Case::MlodI,
-        Case::MlodU,
-        Case::MlodIDrop,
-        Case::MlodRDrop,
-        Case::MlodIrDrop,
-    ] {
+    // MLOD-I and the two cases beyond the paper: the proposal union mlod-u (two stage-1
+    // networks, the refiner on both proposal lists, NMS and voting after it) and mlod-ir-drop
+    // (Result and Input Fusion on the certain points, four networks, their proposals refined
+    // together): whole runs, fuse included.
+    for case in [Case::MlodI, Case::MlodU, Case::MlodIrDrop] {
         if let Ok(m) = mlod::refine::load_mlod(&default_models_dir(), case, Default::default()) {
             g.bench_function(case.as_str(), |b| {
                 b.iter(|| black_box(m.run(&frame, &params).expect("run")))

@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# v4 models (issue 29): every stage-1 case trained from scratch on the sensor-randomised
-# simulator with the transfer augmentation and without intensity. Resumable: re-run the same
+# The training chain of the shipped models (issue 29; first run for the v4 world, then for the
+# walled one that ships): every stage-1 case trained from scratch with the transfer augmentation
+# and without intensity, then temperatures, voting, both refiners and their decoding. Resumable: re-run the same
 # command after a kill; a finished model is skipped and an interrupted one continues from its
 # checkpoint. Each step's wall time goes to OUT/times.tsv.
 #
 # Usage: scripts/train-v4.sh DATA OUT [CASE...]
 #   DATA  a folder holding train/, made by
-#         mlod synth --out DATA/train --scenes 80 --samples-per-scene 20 --seed 101 \
-#           --roof-sensors all --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft
+#         mlod synth --out DATA/train --scenes 80 --samples-per-scene 20 --seed 101
+#         (the walled world, the default; add --world v4 for the v4 world)
 #   OUT   where the weights, loss CSVs, checkpoints and logs go
 #   CASE  top input left right feature (default: all five, in that order); Result Fusion
 #         reuses top/left/right

@@ -298,6 +298,21 @@ fn read_unit(dir: &Path, u: &Unit) -> Option<UnitResult> {
     serde_json::from_slice(&bytes).ok()
 }
 
+/// The rows of a finished sweep's `results.json` (none when the file is absent).
+fn read_merged_rows(dir: &Path) -> Result<Vec<UnitResult>, SweepError> {
+    #[derive(Deserialize)]
+    struct Merged {
+        rows: Vec<UnitResult>,
+    }
+    let path = dir.join("results.json");
+    let Ok(bytes) = std::fs::read(&path) else {
+        return Ok(Vec::new());
+    };
+    serde_json::from_slice::<Merged>(&bytes)
+        .map(|m| m.rows)
+        .map_err(|e| SweepError::BadParameter(format!("{}: {e}", path.display())))
+}
+
 /// The stage-1 networks a case runs (Input Fusion for `input-drop`, Result Fusion for
 /// `result-drop`; each stage 1 of a proposal union).
 fn base_cases(c: Case) -> Vec<Case> {
@@ -639,7 +654,11 @@ pub fn progress(dir: &Path) -> Result<SweepProgress, SweepError> {
     let config = read_config(dir)?;
     config.validate()?;
     let units = config.units();
-    let rows: Vec<UnitResult> = units.iter().filter_map(|u| read_unit(dir, u)).collect();
+    let mut rows: Vec<UnitResult> = units.iter().filter_map(|u| read_unit(dir, u)).collect();
+    if rows.is_empty() {
+        // A committed sweep keeps its merged results.json, not the per-unit files.
+        rows = read_merged_rows(dir)?;
+    }
     let curves = curves_of(&config, &summarize(&config, &rows));
     Ok(SweepProgress {
         total: units.len(),

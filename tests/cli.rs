@@ -574,9 +574,9 @@ fn table1_attribution_agrees_with_eval_attribution() {
 }
 
 /// A fresh `$TMP/mlod-cli-TAG-PID` holding `data/`, ten one-sample scenes made by `mlod synth`
-/// (the tenth is the validation split), and `models/`, a copy of `assets/models/FROM`'s manifest
-/// and LiDAR-Top: what the validation-tuning commands work on. Returns (dir, data, models).
-fn tuning_fixture(tag: &str, from: &str) -> (std::path::PathBuf, String, String) {
+/// (the tenth is the validation split), and `models/`, a copy of the shipped models (manifest and
+/// weights): what the validation-tuning commands work on. Returns (dir, data, models).
+fn tuning_fixture(tag: &str) -> (std::path::PathBuf, String, String) {
     let dir = std::env::temp_dir().join(format!("mlod-cli-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let (data, models) = (dir.join("data"), dir.join("models"));
@@ -601,18 +601,20 @@ fn tuning_fixture(tag: &str, from: &str) -> (std::path::PathBuf, String, String)
         "{}",
         String::from_utf8_lossy(&synth.stderr)
     );
-    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("assets/models")
-        .join(from);
-    for f in ["manifest.json", "top.safetensors"] {
-        std::fs::copy(source.join(f), models.join(f)).expect("copy the models");
+    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models");
+    for e in std::fs::read_dir(&source).expect("models folder") {
+        let p = e.expect("entry").path();
+        let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+        if name == "manifest.json" || name.ends_with(".safetensors") {
+            std::fs::copy(&p, models.join(name)).expect("copy the models");
+        }
     }
     (dir, d, m)
 }
 
 #[test]
 fn tune_vote_records_its_choice_in_the_manifest() {
-    let (dir, d, m) = tuning_fixture("vote", "");
+    let (dir, d, m) = tuning_fixture("vote");
     let (d, m, models) = (d.as_str(), m.as_str(), std::path::Path::new(&m));
     let root = env!("CARGO_MANIFEST_DIR");
     let shipped = std::path::Path::new(root).join("assets/models");
@@ -1655,8 +1657,8 @@ fn a_refiner_of_chosen_widths_trains_and_loads_and_bad_widths_are_refused() {
 
 #[test]
 fn analyze_takes_the_drop_threshold_of_a_drop_case() {
-    // `mlod-i-drop` at α = 0.1: its proposals come from Input Fusion on the points under the
-    // threshold, so another --drop-trace gives the refiner other proposals to look at.
+    // `mlod-ir-drop` at α = 0.1: its proposals come from Result and Input Fusion on the points
+    // under the threshold, so another --drop-trace gives the refiner other proposals to look at.
     let dir = std::env::temp_dir().join(format!("mlod-analyze-drop-{}", std::process::id()));
     let csv = |trace: &str| {
         let out_dir = dir.join(trace);
@@ -1667,7 +1669,7 @@ fn analyze_takes_the_drop_threshold_of_a_drop_case() {
             "--dataset",
             "sample_data",
             "--case",
-            "mlod-i-drop",
+            "mlod-ir-drop",
             "--alpha",
             "0.1",
             "--samples",

@@ -28,6 +28,7 @@ use mlod::refine::train::{train_refiner, RefineTrainConfig};
 use mlod::session::Session;
 use mlod::uncertainty::Perturbation;
 
+mod common;
 #[path = "gui_app/external.rs"]
 mod external;
 
@@ -267,8 +268,8 @@ fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
     use mlod::detect::ground_gate::{gated, GateChoice};
     let mut s = session_at(0.0, ColorMode::Source);
     s.detection.case = Case::Top;
-    // assets/models/v6-walls records a 0.5 m gate (`mlod train tune-gate`).
-    let models = assets_models().join("v6-walls");
+    // The shipped folder records a 0.5 m gate (`mlod train tune-gate`).
+    let models = assets_models();
     let mut h = harness_with(Some(s.clone()), Some(models.clone()));
     h.get_by_label("Run (D)").click();
     h.run_steps(3);
@@ -301,8 +302,9 @@ fn a_models_folder_with_a_ground_gate_runs_its_stage1_behind_it_and_says_so() {
     h.get_by_label("ground gate 0.5 m").click();
     h.run_steps(3);
     assert_eq!(h.state().detection().unwrap().0.detections, want);
-    // The v4 folder has no gate, and the panel says nothing of one.
-    let mut h = harness_with(Some(s), Some(assets_models().join("v4")));
+    // A folder without a gate: the panel says nothing of one.
+    let no_gate = common::shipped_without("gui-gate", &["ground_gate"]);
+    let mut h = harness_with(Some(s), Some(no_gate));
     h.get_by_label("Run (D)").click();
     h.run_steps(3);
     assert!(h.state().detection().is_some());
@@ -464,9 +466,7 @@ fn mlod_models() -> PathBuf {
     .clone()
 }
 
-fn assets_models() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models")
-}
+use common::assets_models;
 
 /// `dir` with the shipped stage-1 weights and their manifest, without a refiner.
 fn stage1_copy(dir: &Path) -> PathBuf {
@@ -1366,7 +1366,9 @@ fn play_alpha_steps_through_distinct_frames_and_a_clip_is_a_looping_gif() {
 
 #[test]
 fn a_sweep_folder_opens_as_its_ap_against_alpha_plot_and_the_session_keeps_it() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/v4/table2");
+    // A committed sweep: its merged results.json, no per-unit files.
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/v6w/table2");
+    assert!(!dir.join("units").exists());
     let mut h = harness(Some(session_at(0.0, ColorMode::Source)));
     let before = h.render().unwrap();
     h.state_mut().open_sweep(&dir).unwrap();
@@ -1504,9 +1506,6 @@ fn a_session_only_reads_the_folders_it_names_and_saving_writes_one_file() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/sweeps/input-drop");
     for f in ["config.json", "results.json"] {
         std::fs::copy(src.join(f), sweep.join(f)).unwrap();
-    }
-    for e in std::fs::read_dir(src.join("units")).unwrap().flatten().take(5) {
-        std::fs::copy(e.path(), sweep.join("units").join(e.file_name())).unwrap();
     }
     let mut s = session_at(0.04, ColorMode::Trace);
     s.sweep = Some(sweep.clone());

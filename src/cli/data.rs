@@ -18,38 +18,42 @@ pub struct SynthArgs {
     /// Seed of everything generated (layout, motion, noise, tokens).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// The world: `walled` (the default: the world the shipped models were trained in), `v4` or
+    /// `v2` (see `mlod::synth::World`). The options below override the world's values.
+    #[arg(long, default_value = "walled", value_parser = mlod::synth::World::parse)]
+    world: mlod::synth::World,
     /// Sensor randomisation: each scene's roof LiDAR is one of these (comma separated:
-    /// pandar40, pandar64, hdl64e, hdl32e, vls128; `all` for every one). Default: Lyft's Pandar40.
+    /// pandar40, pandar64, hdl64e, hdl32e, vls128; `all` for every one). v2: Lyft's Pandar40;
+    /// v4, walled: all.
     #[arg(long, value_delimiter = ',', value_parser = parse_preset)]
     roof_sensors: Vec<Vec<mlod::synth::SensorPreset>>,
-    /// Sensor randomisation: each scene's roof LiDAR mount raised or lowered by up to this (m).
-    #[arg(long, default_value_t = 0.0)]
-    roof_height_jitter: f64,
-    /// Car sizes: `uniform` (4.2–5.0 m long, one body shape) or `mixed` (compacts, sedans, SUVs
-    /// and pickups; mean near real Lyft's 4.75 × 1.92 × 1.71 m).
-    #[arg(long, default_value = "uniform", value_parser = ["uniform", "mixed"])]
-    car_sizes: String,
-    /// Intensity: `reflectance` (from the material and incidence, 0–255) or `lyft` (100 for
-    /// every point, as the real Lyft Level 5 files hold).
-    #[arg(long, default_value = "reflectance", value_parser = ["reflectance", "lyft"])]
-    intensity: String,
-    /// Vehicle side glass: `opaque` (a dark surface, as up to v4) or `see-through` (80 % of the
-    /// beams pass it and return from the cabin's lower body, what stands behind the car or the
-    /// ground); `see-through-no-ground` reproduces the first see-through data (the v5-glass
-    /// candidate's), where a beam through the glass that meets nothing else returned nothing.
-    #[arg(long, default_value = "opaque", value_parser = ["opaque", "see-through", "see-through-no-ground"])]
-    glass: String,
+    /// Sensor randomisation: each scene's roof LiDAR mount raised or lowered by up to this (m;
+    /// v2: 0, v4 and walled: 0.2).
+    #[arg(long)]
+    roof_height_jitter: Option<f64>,
+    /// Car sizes: `uniform` (4.2–5.0 m long, one body shape; v2) or `mixed` (compacts, sedans,
+    /// SUVs and pickups; mean near real Lyft's 4.75 × 1.92 × 1.71 m; v4, walled).
+    #[arg(long, value_parser = ["uniform", "mixed"])]
+    car_sizes: Option<String>,
+    /// Intensity: `reflectance` (from the material and incidence, 0–255; v2) or `lyft` (100 for
+    /// every point, as the real Lyft Level 5 files hold; v4, walled).
+    #[arg(long, value_parser = ["reflectance", "lyft"])]
+    intensity: Option<String>,
+    /// Vehicle side glass: `opaque` (a dark surface; v2, v4), `see-through` (80 % of the beams
+    /// pass it and return from the cabin's lower body, what stands behind the car or the ground)
+    /// or `see-through-no-ground` (the same, but a beam through the glass that meets nothing else
+    /// returns nothing; walled).
+    #[arg(long, value_parser = ["opaque", "see-through", "see-through-no-ground"])]
+    glass: Option<String>,
     /// Share (0–1) of the stretches between driveways lined by a wall or hedge right behind the
-    /// curb, as on narrow streets where a car parks half a metre from a garden wall (0: none).
-    #[arg(long, default_value_t = 0.0)]
-    curb_walls: f64,
+    /// curb, as on narrow streets where a car parks half a metre from a garden wall (v2, v4: 0;
+    /// walled: 0.5).
+    #[arg(long)]
+    curb_walls: Option<f64>,
     /// Show a progress bar.
     #[arg(long)]
     progress: bool,
 }
-
-/// Share of the beams that pass a vehicle's side glass with `--glass see-through`.
-const GLASS_PASS: f64 = 0.8;
 
 fn parse_preset(s: &str) -> Result<Vec<mlod::synth::SensorPreset>, String> {
     use mlod::synth::SensorPreset;
@@ -82,32 +86,38 @@ pub struct InspectArgs {
 }
 
 pub fn synth(args: SynthArgs) -> Result<()> {
-    let cfg = mlod::synth::SynthConfig {
-        seed: args.seed,
-        scenes: args.scenes,
-        samples_per_scene: args.samples_per_scene,
-        roof: mlod::synth::RoofRandomisation {
-            presets: args.roof_sensors.iter().flatten().copied().collect(),
-            height_jitter_m: args.roof_height_jitter,
-        },
-        car_sizes: if args.car_sizes == "mixed" {
+    // The world's configuration, then each option given on the command line over it.
+    let mut cfg = args.world.config();
+    cfg.seed = args.seed;
+    cfg.scenes = args.scenes;
+    cfg.samples_per_scene = args.samples_per_scene;
+    if !args.roof_sensors.is_empty() {
+        cfg.roof.presets = args.roof_sensors.iter().flatten().copied().collect();
+    }
+    if let Some(j) = args.roof_height_jitter {
+        cfg.roof.height_jitter_m = j;
+    }
+    if let Some(c) = &args.car_sizes {
+        cfg.car_sizes = if c == "mixed" {
             mlod::synth::CarSizes::Mixed
         } else {
             mlod::synth::CarSizes::Uniform
-        },
-        lidar: mlod::synth::LidarModel {
-            constant_intensity: (args.intensity == "lyft").then_some(100.0),
-            glass_pass: if args.glass.starts_with("see-through") {
-                GLASS_PASS
-            } else {
-                0.0
-            },
-            glass_ground: args.glass != "see-through-no-ground",
-            ..Default::default()
-        },
-        curb_walls: args.curb_walls,
-        ..Default::default()
-    };
+        };
+    }
+    if let Some(i) = &args.intensity {
+        cfg.lidar.constant_intensity = (i == "lyft").then_some(100.0);
+    }
+    if let Some(g) = &args.glass {
+        cfg.lidar.glass_pass = if g.starts_with("see-through") {
+            mlod::synth::world::GLASS_PASS
+        } else {
+            0.0
+        };
+        cfg.lidar.glass_ground = g != "see-through-no-ground";
+    }
+    if let Some(w) = args.curb_walls {
+        cfg.curb_walls = w;
+    }
     let bar = args.progress.then(|| {
         let bar = indicatif::ProgressBar::new((args.scenes * args.samples_per_scene) as u64);
         bar.set_style(

@@ -75,9 +75,11 @@ Examples:
 
 pub const SYNTH_EXAMPLES: &str = "\
 Examples:
-  mlod synth --out sample_data --seed 0 --roof-sensors pandar40 --roof-height-jitter 0.2 --car-sizes mixed --intensity lyft
-                                                  regenerates sample_data/ (1 scene of 10 samples: the defaults)
-  mlod synth --out data/train --scenes 80 --samples-per-scene 20 --seed 101 --progress";
+  mlod synth --out sample_data --seed 0 --roof-sensors pandar40
+                                                  regenerates sample_data/ (1 scene of 10 samples)
+  mlod synth --out data/train --scenes 80 --samples-per-scene 20 --seed 101 --progress
+                                                  the training split of the shipped models
+  mlod synth --out data/v4 --world v4 --seed 101  an earlier world (v2, v4, walled)";
 
 pub const FUSE_EXAMPLES: &str = "\
 Examples:
@@ -120,7 +122,7 @@ Examples:
 /// `mlod detect --help`'s epilogue: every case with its one-line description, then the examples.
 pub fn detect_help() -> String {
     let mut s = String::from("Cases:\n");
-    for c in mlod::detect::Case::WITH_OC {
+    for c in mlod::detect::Case::LISTED {
         s.push_str(&format!(
             "  {:<15} {}: {}\n",
             c.as_str(),

@@ -556,4 +556,20 @@ mod tests {
         let heading = yaw_of(tilted.to_rotation_matrix().matrix());
         assert!((pyquaternion_yaw(&tilted) - heading).abs() > 1e-4);
     }
+
+    #[test]
+    fn set_intensity_reaches_every_lidar() {
+        let ds = crate::dataset::Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
+        let mut frame = ds.frame(ds.first_sample_token().unwrap()).unwrap();
+        assert!(frame.lidars().count() == 3);
+        frame.set_intensity(30.0);
+        for l in frame.lidars() {
+            assert!(!l.points.intensity.is_empty());
+            assert!(
+                l.points.intensity.iter().all(|v| *v == 30.0),
+                "{}",
+                l.info.channel.as_str()
+            );
+        }
+    }
 }

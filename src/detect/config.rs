@@ -36,10 +36,7 @@ impl ModelConfig {
     pub fn new(case: Case) -> Self {
         Self {
             case,
-            grid: GridConfig {
-                trace: case == Case::InputTr,
-                ..GridConfig::default()
-            },
+            grid: GridConfig::default(),
             net: NetConfig::default(),
             anchor: AnchorConfig::default(),
             score_threshold: 0.05,
@@ -52,7 +49,7 @@ impl ModelConfig {
 
     /// The names of the network branches: one per LiDAR in Feature Fusion, else one.
     pub fn branch_names(&self) -> Vec<&'static str> {
-        match self.case.network() {
+        match self.case {
             Case::Feature => vec!["top", "left", "right"],
             c => vec![c.as_str()],
         }

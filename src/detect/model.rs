@@ -46,7 +46,7 @@ pub fn branch_points<'a>(case: Case, cloud: &'a FusedCloud) -> Vec<Option<Points
             .filter(|l| l.range.end <= cloud.len() && l.range.end <= cloud.intensity.len())
             .map(|l| slice(l.range.clone()))
     };
-    match case.network() {
+    match case {
         Case::Input => vec![Some(slice(0..cloud.len().min(cloud.intensity.len())))],
         Case::Feature => LidarChannel::ALL.iter().map(|c| of(*c)).collect(),
         c => vec![c.channel().and_then(of)],

@@ -53,7 +53,6 @@ use super::{Case, DetectError};
 pub use crate::dataset::train_validation_split as split;
 use crate::dataset::{Dataset, Frame};
 use crate::pipeline::{fuse, FuseParams, FusedCloud};
-use crate::uncertainty::{Perturbation, TRAINING_ALPHAS, TRAINING_ZERO_SHARE};
 
 /// The §V-A-5 augmentation of one sample.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -145,8 +144,7 @@ pub fn prepare_sample(
 /// Boxes per frame that [`TransferAug`] may scale (the rest keep their size).
 const MAX_SCALED_BOXES: usize = 128;
 
-/// [`prepare_sample`] with the transfer augmentation before SECOND's, fused with `params` (a
-/// drift for the cases trained under it, [`drift_params`]).
+/// [`prepare_sample`] with the transfer augmentation before SECOND's, fused with `params`.
 pub fn prepare_sample_with(
     model: &Stage1Model,
     frame: &Frame,
@@ -189,22 +187,6 @@ pub fn prepare_sample_with(
         targets,
         num_gt: gts.len(),
         num_dont_care: dont_care.len(),
-    })
-}
-
-/// The fuse parameters of one step of a case trained under drift: α = 0 with probability
-/// [`TRAINING_ZERO_SHARE`], else one of [`TRAINING_ALPHAS`], and a perturbation seed — the
-/// distribution the refiner's proposal database draws from.
-pub fn drift_params(rng: &mut ChaCha8Rng) -> Result<FuseParams, DetectError> {
-    let alpha = if rng.random::<f64>() < TRAINING_ZERO_SHARE {
-        0.0
-    } else {
-        TRAINING_ALPHAS[rng.random_range(0..TRAINING_ALPHAS.len())]
-    };
-    let seed = rng.random::<u32>() as u64;
-    Ok(FuseParams {
-        perturbation: Perturbation::new(alpha, seed).map_err(|e| DetectError::BadParameter(e.to_string()))?,
-        ..FuseParams::default()
     })
 }
 
@@ -606,11 +588,7 @@ pub fn train_stage1(
         let transfer = cfg
             .transfer_aug
             .then(|| TransferAug::draw(&mut stream_rng(cfg.seed, (1u64 << 34) + step), MAX_SCALED_BOXES));
-        let params = if cfg.case.trains_under_drift() {
-            drift_params(&mut stream_rng(cfg.seed, (1u64 << 35) + step))?
-        } else {
-            FuseParams::default()
-        };
+        let params = FuseParams::default();
         let sample = prepare_sample_with(&model, &frame, aug.as_ref(), &objects, transfer.as_ref(), &params)?;
         Ok((sample, t0.elapsed().as_secs_f64() * 1e3))
     };

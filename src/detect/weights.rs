@@ -194,6 +194,10 @@ impl InitRecord {
 /// `assets/models/manifest.json`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct Manifest {
+    /// The simulator world the models were trained in (`mlod synth --world NAME`,
+    /// `crate::synth::World`); absent for models trained on other data.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world: Option<String>,
     /// Per trained case.
     pub models: BTreeMap<Case, ModelEntry>,
     /// Result Fusion's temperature per generator (`top`, `left`, `right`), fitted on validation.

@@ -621,7 +621,7 @@ mod tests {
         let d = Decoding::of(Some(&t)).unwrap();
         assert_eq!(d.for_case(Case::MlodI).nms_iou, None);
         assert_eq!(d.for_case(Case::MlodU).nms_iou, Some(UNION_NMS_IOU));
-        assert_eq!(d.for_case(Case::MlodUTr).nms_iou, Some(UNION_NMS_IOU));
+        assert_eq!(d.for_case(Case::MlodIrDrop).nms_iou, Some(UNION_NMS_IOU));
         t.union_nms_iou = Some(0.3);
         t.nms_iou = Some(0.1);
         let d = Decoding::of(Some(&t)).unwrap();
@@ -665,7 +665,7 @@ mod tests {
         let d = Decoding::of(Some(&t)).unwrap();
         assert_eq!(d.for_case(Case::MlodIrDrop).vote_iou, Some(0.5));
         assert_eq!(d.for_case(Case::MlodU).vote_iou, Some(0.5));
-        assert_eq!(d.for_case(Case::MlodRDrop).vote_iou, None);
+        assert_eq!(d.for_case(Case::MlodINoTrace).vote_iou, None);
         assert_eq!(d.for_case(Case::MlodI).vote_iou, None);
         // Two refinements of one car 0.4 m apart (3D IoU 0.82), equal scores, and a far car.
         let out = vec![refined(0.0, 0.9, 0), refined(0.4, 0.9, 1), refined(20.0, 0.5, 2)];

@@ -28,6 +28,7 @@ pub mod scene;
 pub mod sensors;
 pub mod shapes;
 pub mod street;
+pub mod world;
 pub mod writer;
 
 use std::path::PathBuf;
@@ -38,6 +39,7 @@ pub use raycast::{scan_sample, Hit, LidarScan, SampleScan};
 pub use rig::{pandar40_elevations_deg, LidarModel, LidarMount, EGO_BODY, LIDAR_COUNT, LYFT_MOUNTS};
 pub use scene::{Actor, Attribute, SceneWorld, Town, SAMPLE_PERIOD_S};
 pub use sensors::{RoofRandomisation, RoofSensor, SensorPreset};
+pub use world::World;
 pub use writer::{generate, HOST};
 
 /// The most scenes one dataset may have.

@@ -24,7 +24,8 @@ fn cli_top(models: &std::path::Path, frame: &mlod::dataset::Frame) -> Vec<mlod::
 
 #[test]
 fn a_one_lidar_sample_runs_the_shipped_chain_and_another_folder_takes_over() {
-    let v4 = assets_models().join("v4");
+    // A second folder: the shipped weights without the ground gate and the box voting.
+    let other = crate::common::shipped_without("gui-models", &["ground_gate", "vote"]);
     let (mut h, _) = harness_full(kitti_fixture(), None, None);
     assert_eq!(h.state().session().detection.case, Case::Top);
     assert!(h.query_by_label_contains("models: assets/models").is_some());
@@ -37,31 +38,31 @@ fn a_one_lidar_sample_runs_the_shipped_chain_and_another_folder_takes_over() {
     assert!(h.query_by_label_contains("ground gate 0.5 m").is_some());
 
     // File > Open models folder… switches the folder and runs the case again from it.
-    h.state_mut().open_models(v4.clone(), 0.0);
+    h.state_mut().open_models(other.clone(), 0.0);
     assert!(h
         .state()
         .toast_texts()
         .iter()
-        .any(|t| t.starts_with("detectors from") && t.ends_with("v4")));
+        .any(|t| t.starts_with("detectors from") && t.ends_with("models")));
     h.run_steps(3);
-    assert_eq!(h.state().models_dir(), v4.as_path());
+    assert_eq!(h.state().models_dir(), other.as_path());
     let (view, _) = h.state().detection().expect("the switch ran LiDAR-Top again");
-    assert_eq!(view.detections, cli_top(&v4, &frame));
+    assert_eq!(view.detections, cli_top(&other, &frame));
     assert_ne!(view.detections, shipped, "another model gives other boxes");
-    assert!(h.query_by_label_contains("models: assets/models/v4").is_some());
+    assert!(h.query_by_label_contains("models: assets/models").is_none());
     assert!(
         h.query_by_label_contains("ground gate").is_none(),
-        "v4 records no gate"
+        "the second folder records no gate"
     );
 
     // The session remembers the folder, and a window opened on it runs from it.
     let s = h.state().current_session();
-    assert_eq!(s.models.as_deref(), Some(v4.as_path()));
+    assert_eq!(s.models.as_deref(), Some(other.as_path()));
     let json = serde_json::to_string(&s).unwrap();
     let back: Session = serde_json::from_str(&json).unwrap();
     let (h2, _) = harness_full(kitti_fixture(), Some(back), None);
-    assert_eq!(h2.state().models_dir(), v4.as_path());
-    assert!(h2.query_by_label_contains("models: assets/models/v4").is_some());
+    assert_eq!(h2.state().models_dir(), other.as_path());
+    assert!(h2.query_by_label_contains("models: assets/models").is_none());
 }
 
 #[test]

@@ -23,7 +23,7 @@ pub(super) fn detection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         egui::ComboBox::new("mlod_detector_case", "case")
             .selected_text(d.case.paper_name())
             .show_ui(ui, |ui| {
-                for c in Case::WITH_OC.into_iter().chain(external) {
+                for c in Case::LISTED.into_iter().chain(external) {
                     if c == Case::BEYOND[0] {
                         ui.separator();
                         ui.weak("beyond the paper");
@@ -190,7 +190,7 @@ fn proposal_line(ui: &mut egui::Ui, c: &DetectionCounts) {
 
 /// The cases compare mode offers against `a`: any other case but the (OC) ones.
 fn comparable(a: Case) -> impl Iterator<Item = Case> {
-    Case::WITH_OC.into_iter().filter(move |c| *c != a && !c.is_oc())
+    Case::LISTED.into_iter().filter(move |c| *c != a && !c.is_oc())
 }
 
 /// "compare with [case]": a split viewport with a second case on the same perturbed frame.
