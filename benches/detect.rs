@@ -9,10 +9,10 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
 use mlod::detect::model::load_detector;
-use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::{Case, Detector, ModelConfig, ResultFusion, Stage1Model};
 use mlod::pipeline::{fuse, FuseParams};
+use mlod::train::stage1::{compute_loss, prepare_sample, AdamW};
 use std::hint::black_box;
 
 fn detector(case: Case) -> Box<dyn Detector> {
@@ -93,7 +93,7 @@ fn bench_refine(c: &mut Criterion) {
     let refiner = Refiner::load_shipped(&default_models_dir()).unwrap_or_else(|_| {
         let cfg = RefinerConfig::default();
         let (_, varmap) = RefinerNet::trainable(&cfg, 1).expect("network");
-        let tensors = mlod::detect::checkpoint::varmap_tensors(&varmap).expect("tensors");
+        let tensors = mlod::detect::weights::varmap_tensors(&varmap).expect("tensors");
         Refiner::from_tensors(cfg, &|n| tensors.get(n).cloned(), Decoding::default()).expect("refiner")
     });
     // 50 proposals: Input Fusion's, topped up with shifted copies when it gives fewer.
@@ -117,7 +117,7 @@ fn bench_refine(c: &mut Criterion) {
     // (Result and Input Fusion on the certain points, four networks, their proposals refined
     // together): whole runs, fuse included.
     for case in [Case::MlodI, Case::MlodU, Case::MlodIrDrop] {
-        if let Ok(m) = mlod::refine::load_mlod(&default_models_dir(), case, Default::default()) {
+        if let Ok(m) = mlod::cases::load_mlod(&default_models_dir(), case, Default::default()) {
             g.bench_function(case.as_str(), |b| {
                 b.iter(|| black_box(m.run(&frame, &params).expect("run")))
             });

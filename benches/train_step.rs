@@ -1,20 +1,19 @@
 //! One training step of each trained network, the network part only (forward, loss, backward,
 //! AdamW with clipping), data prepared outside the timed loop (issue 28):
-//! - `stage1/native`, `stage1/fast` and `stage1/slow_autograd`: the shipped LiDAR-Top stage-1
-//!   network (33 input channels, 256×256 grid, 32 768 anchors) on a sample_data frame, on the
-//!   native trainer (`src/detect/native/`, the default of `mlod train stage1`), on candle's
-//!   autograd with the gemm convolutions (`src/detect/fastconv.rs`) and with candle's own
+//! - `stage1/native` and `stage1/slow_autograd`: the shipped LiDAR-Top stage-1 network (33 input
+//!   channels, 256×256 grid, 32 768 anchors) on a sample_data frame, on the native trainer
+//!   (`src/train/stage1/native/`, the default of `mlod train stage1`) and on candle's autograd
 //!   (`--slow-autograd`);
 //! - `refiner/native` and `refiner/candle`: the stage-2 PointNet (default configuration) on 32
 //!   proposals × 1024 seeded random points (the trainer's batch), on the native trainer
-//!   (`src/refine/native.rs`, the default of `mlod train refiner`) and on candle's autograd
+//!   (`src/train/refiner_native.rs`, the default of `mlod train refiner`) and on candle's autograd
 //!   (`--slow-autograd`).
 use candle_core::{Device, Tensor};
 use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
-use mlod::detect::native::NativeTrainer;
-use mlod::detect::train::{compute_loss, prepare_sample, AdamW};
 use mlod::detect::{Case, ModelConfig, Stage1Model};
+use mlod::train::stage1::native::NativeTrainer;
+use mlod::train::stage1::{compute_loss, prepare_sample, AdamW};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -33,12 +32,11 @@ fn bench_stage1(c: &mut Criterion) {
             b.iter(|| native.step(&sample, 1.0, 1e-4, 10.0).expect("step"))
         });
     }
-    for (name, fast) in [("fast", true), ("slow_autograd", false)] {
-        let mut model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).expect("model");
-        model.net.fast = fast;
+    {
+        let model = Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1).expect("model");
         let sample = prepare_sample(&model, &frame, None, &[]).expect("sample");
         let mut opt = AdamW::new(&model, 0.01).expect("optimiser");
-        g.bench_function(name, |b| {
+        g.bench_function("slow_autograd", |b| {
             b.iter(|| {
                 let l = compute_loss(&model, &sample).expect("loss");
                 let grads = l.total.backward().expect("backward");
@@ -50,8 +48,8 @@ fn bench_stage1(c: &mut Criterion) {
 }
 
 fn bench_refiner(c: &mut Criterion) {
-    use mlod::refine::loss::{loss, Target};
     use mlod::refine::net::{RefinerConfig, RefinerNet, PROPOSAL_FEATURES};
+    use mlod::train::refiner_loss::{loss, Target};
     let cfg = RefinerConfig::default();
     let (b, n, ch) = (32usize, cfg.gather.points, cfg.gather.features.channels());
     let (net, varmap) = RefinerNet::trainable(&cfg, 1).expect("network");
@@ -79,7 +77,7 @@ fn bench_refiner(c: &mut Criterion) {
     {
         let (_, vm) = RefinerNet::trainable(&cfg, 1).expect("network");
         let nopt = AdamW::for_varmap(&vm, 0.01).expect("optimiser");
-        let mut native = mlod::refine::native::NativeRefiner::new(&cfg, &vm, &nopt).expect("trainer");
+        let mut native = mlod::train::refiner_native::NativeRefiner::new(&cfg, &vm, &nopt).expect("trainer");
         let pts: Vec<f32> = points.flatten_all().expect("points").to_vec1().expect("points");
         let prs: Vec<f32> = props.flatten_all().expect("props").to_vec1().expect("props");
         g.bench_function("native", |bch| {

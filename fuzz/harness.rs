@@ -276,17 +276,17 @@ pub fn sweep_folder(data: &[u8]) {
     let s = Scratch::new("sweep");
     let ps = parts(data, 64);
     s.write("config.json", ps[0]);
-    if let Ok(cfg) = mlod::sweep::read_config(s.path()) {
+    if let Ok(cfg) = mlod::analysis::sweep::read_config(s.path()) {
         if cfg.validate().is_ok() {
             for (u, part) in cfg.units().iter().zip(&ps[1..]) {
                 s.write(&format!("units/{}", u.file()), part);
             }
         }
     }
-    if let Ok(p) = mlod::sweep::progress(s.path()) {
+    if let Ok(p) = mlod::analysis::sweep::progress(s.path()) {
         assert!(p.rows.len() <= p.total);
         let out = Scratch::new("sweep-merged");
-        let _ = mlod::sweep::merge(out.path(), &[s.path().to_path_buf()]);
+        let _ = mlod::analysis::sweep::merge(out.path(), &[s.path().to_path_buf()]);
     }
 }
 

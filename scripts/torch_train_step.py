@@ -2,7 +2,7 @@
 """PyTorch eager reference for one training step of mlod's networks on the CPU (issue 28).
 
 The same architectures, losses, AdamW (weight decay 0.01) and gradient-norm clipping (10) as
-src/detect/net.rs + src/detect/train.rs (stage 1, LiDAR-Top: 33 x 256 x 256 input, mid 24,
+src/detect/net.rs + src/train/stage1.rs (stage 1, LiDAR-Top: 33 x 256 x 256 input, mid 24,
 RPN 48 x 2 layers, 32 768 anchors) and src/refine/net.rs + loss (PointNet 4 -> 32/64/128, max,
 proposal MLP 9 -> 32, head 160 -> 128 -> 64, cls 1 + reg 8; 32 proposals x 1024 points).
 Inputs and targets are seeded random data of the right shape (dense convolutions cost the same

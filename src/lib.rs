@@ -13,23 +13,26 @@
 
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+pub mod analysis;
 pub mod calib;
+pub mod cases;
 pub mod color;
 pub mod dataset;
 pub mod detect;
 pub mod eval;
 pub mod export;
-pub mod failures;
+pub mod external;
 pub mod geometry;
-pub mod inspect;
 pub mod io;
+pub mod nn;
 pub mod pipeline;
-pub mod plot;
 pub mod refine;
 pub mod session;
-pub mod sweep;
 pub mod synth;
+pub mod train;
 pub mod uncertainty;
 
 #[cfg(feature = "gui")]
 pub mod gui;
+#[cfg(feature = "gui")]
+pub mod render;

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 
 use super::detect::DetectorRun;
-use mlod::refine::active::{active_points, write_report};
+use mlod::analysis::active::{active_points, write_report};
 
 #[derive(clap::Subcommand)]
 pub enum AnalyzeCommand {
@@ -44,7 +44,7 @@ pub fn analyze(cmd: AnalyzeCommand) -> Result<()> {
             }
             // What the refiner sees is measured before any gate, on the points as read: refuse
             // the flags that would change nothing here rather than ignore them.
-            if a.run.ground_gate != mlod::detect::ground_gate::GateChoice::Manifest {
+            if a.run.ground_gate != mlod::cases::ground_gate::GateChoice::Manifest {
                 bail!("--ground-gate does not apply to active points: a gate drops boxes after the refiner has seen its points");
             }
             if a.run.set_intensity.is_some() {
@@ -52,7 +52,7 @@ pub fn analyze(cmd: AnalyzeCommand) -> Result<()> {
             }
             let dataset = super::open_dataset(&a.dataset)?;
             let mlod_det =
-                mlod::refine::load_mlod_with(&a.run.models_dir(), a.case, a.run.vote_iou, a.run.drop_trace)?;
+                mlod::cases::load_mlod_with(&a.run.models_dir(), a.case, a.run.vote_iou, a.run.drop_trace)?;
             let params = a.run.fuse_params()?;
             let rows = active_points(&dataset, &mlod_det, &params, a.samples)?;
             if rows.is_empty() {

@@ -37,7 +37,7 @@ pub struct DetectorRun {
     pub oc_prior: mlod::calib::OcPrior,
     /// `input-drop`, `mlod-i-drop`: points with tr(Ξ) above this (m²) are removed before Input
     /// Fusion (default: the threshold chosen on the validation scenes).
-    #[arg(long, default_value_t = mlod::detect::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
+    #[arg(long, default_value_t = mlod::cases::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
     /// Set every point's intensity to this value before the detector runs (real Lyft data holds
     /// 100 everywhere): how much a model leans on intensity.
@@ -49,7 +49,7 @@ pub struct DetectorRun {
     /// models folder's gate for the stage-1 cases (`mlod train tune-gate`; none if it has
     /// none), `off`, or a height in metres (any case).
     #[arg(long, default_value = "manifest")]
-    pub ground_gate: mlod::detect::ground_gate::GateChoice,
+    pub ground_gate: mlod::cases::ground_gate::GateChoice,
     #[command(flatten)]
     pub external: super::external::ExternalArgs,
 }
@@ -72,7 +72,7 @@ impl DetectorRun {
     /// The detector of `case` from the models folder, with the decoding asked for.
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
         self.external.define_for(&[case])?;
-        let detector = mlod::refine::load_detector_oc(
+        let detector = mlod::cases::load_detector_oc(
             &self.models_dir(),
             case,
             self.vote_iou,
@@ -80,7 +80,7 @@ impl DetectorRun {
             self.oc_prior,
             self.drop_trace,
         )?;
-        Ok(mlod::detect::ground_gate::gated(
+        Ok(mlod::cases::ground_gate::gated(
             detector,
             self.ground_gate,
             &self.models_dir(),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 
-use mlod::detect::external::{self, DetectorsFile, ExternalSpec};
+use mlod::external::{self, DetectorsFile, ExternalSpec};
 
 #[derive(clap::Args, Clone, Default)]
 pub struct ExternalArgs {

@@ -8,8 +8,8 @@ use anyhow::{bail, Result};
 
 use super::args::parse_unit;
 use super::detect::DetectorRun;
+use mlod::analysis::failures::{scan_with, ScanConfig};
 use mlod::detect::Case;
-use mlod::failures::{scan_with, ScanConfig};
 
 #[derive(clap::Args)]
 pub struct FailuresArgs {
@@ -61,7 +61,7 @@ pub fn run(a: FailuresArgs) -> Result<()> {
         }
         None => all.iter().map(|s| s.sample_token.clone()).collect(),
     };
-    let tokens = mlod::sweep::spread_samples(&chosen, a.samples);
+    let tokens = mlod::analysis::sweep::spread_samples(&chosen, a.samples);
     if tokens.is_empty() {
         bail!(
             "{}: no samples to scan (its sample table is empty)",

@@ -7,8 +7,8 @@ use anyhow::{Context, Result};
 
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
-use mlod::refine::proposals::{build, DatabaseConfig};
-use mlod::refine::train::{train_refiner, RefineTrainConfig};
+use mlod::train::proposals::{build, DatabaseConfig};
+use mlod::train::refiner::{train_refiner, RefineTrainConfig};
 
 #[derive(clap::Args)]
 pub struct ProposalsArgs {
@@ -208,9 +208,10 @@ pub struct TuneRefinerArgs {
 /// (score rule × NMS) scored on the same runs; the best mean car moderate AP_3D@0.7 wins (the
 /// refined score without NMS on a tie) and goes into the manifest atomically.
 pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
+    use mlod::cases::load_mlod;
     use mlod::detect::model::Voting;
     use mlod::detect::weights::{Manifest, RefineTuning};
-    use mlod::refine::{load_mlod, redecode, Decoding, ScoreRule};
+    use mlod::refine::{redecode, Decoding, ScoreRule};
     use rayon::prelude::*;
     use std::collections::{BTreeMap, HashMap};
     let models = a.models.clone().unwrap_or_else(default_models_dir);
@@ -244,7 +245,7 @@ pub fn tune_refiner(a: TuneRefinerArgs, command: String) -> Result<()> {
         None => d.score.as_str().to_string(),
     };
     // An MLOD case's runs over the validation samples at α (one draw, seed --seed).
-    let runs_at = |m: &mlod::refine::Mlod, alpha: f64| -> Result<Vec<(String, mlod::refine::MlodRun)>> {
+    let runs_at = |m: &mlod::cases::Mlod, alpha: f64| -> Result<Vec<(String, mlod::refine::MlodRun)>> {
         let params = mlod::pipeline::FuseParams {
             perturbation: mlod::uncertainty::Perturbation::new(alpha, a.seed)?,
             ..Default::default()

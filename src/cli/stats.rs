@@ -91,7 +91,7 @@ pub fn run(a: StatsArgs) -> Result<()> {
             files.push(p);
             sets.push((l.as_str(), c));
         }
-        files.extend(mlod::plot::stats_pngs(&sets, dir)?);
+        files.extend(mlod::analysis::plot::stats_pngs(&sets, dir)?);
         for f in &files {
             eprintln!("wrote {}", f.display());
         }

@@ -1,14 +1,14 @@
 //! `mlod sweep`: the paper's Table II on a dataset — cases × α × perturbation trials, resumable
-//! and shardable (`mlod::sweep`); `mlod sweep merge` unites shard folders.
+//! and shardable (`mlod::analysis::sweep`); `mlod sweep merge` unites shard folders.
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 
+use mlod::analysis::sweep::{self, Draw, ShardSpec, SweepConfig};
 use mlod::calib::OcPrior;
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
-use mlod::sweep::{self, Draw, ShardSpec, SweepConfig};
 
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true)]
@@ -125,7 +125,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
             .iter()
             .any(|c| c.proposal_cases().iter().any(|p| p.dropped().is_some()))
         {
-            Some(args.drop_trace.unwrap_or(mlod::detect::drop::DROP_TRACE))
+            Some(args.drop_trace.unwrap_or(mlod::cases::drop::DROP_TRACE))
         } else {
             None
         },

@@ -6,12 +6,12 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use mlod::detect::ground_gate::GateChoice;
+use mlod::cases::ground_gate::GateChoice;
 use mlod::detect::model::Voting;
-use mlod::detect::train::{calibrate_temperatures, train_stage1, TrainConfig};
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
+use mlod::train::stage1::{calibrate_temperatures, train_stage1, TrainConfig};
 
 use super::args::command_line;
 use super::detect::DetectorRun;
@@ -122,7 +122,7 @@ pub struct Stage1Args {
     #[arg(long, default_value_t = 1.0)]
     size_weight: f32,
     /// Augmentation for transfer to other sensors and cars: object scaling, global scaling and
-    /// random point density (src/detect/transfer_aug.rs).
+    /// random point density (src/train/transfer_aug.rs).
     #[arg(long)]
     transfer_aug: bool,
     /// Leave intensity out of the input (its BEV channel stays zero): for data whose intensity
@@ -331,7 +331,7 @@ fn tune_gate(a: TuneGateArgs) -> Result<()> {
     candidates.dedup();
     let mut choices = vec![(GateChoice::Off, None)];
     for &c in &candidates {
-        let gate = mlod::detect::ground_gate::check_gate(c as f32).map_err(anyhow::Error::msg)?;
+        let gate = mlod::cases::ground_gate::check_gate(c as f32).map_err(anyhow::Error::msg)?;
         choices.push((GateChoice::Metres(gate), Some(c)));
     }
     let mut validation = BTreeMap::new();
@@ -390,7 +390,7 @@ fn validation_ap(
         models: Some(models.to_path_buf()),
         vote_iou,
         oc_prior: Default::default(),
-        drop_trace: mlod::detect::drop::DROP_TRACE,
+        drop_trace: mlod::cases::drop::DROP_TRACE,
         set_intensity: None,
         ground_gate,
         external: Default::default(),

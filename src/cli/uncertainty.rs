@@ -176,7 +176,7 @@ pub fn plane_fit(args: PlaneFitArgs) -> Result<()> {
     let csv_path = args.out.join("plane_fit.csv");
     mlod::io::write_atomic(&csv_path, csv.as_bytes())?;
     let png_path = args.out.join("plane_fit.png");
-    mlod::plot::plane_fit_png(&rows, &png_path)?;
+    mlod::analysis::plot::plane_fit_png(&rows, &png_path)?;
     print!("{csv}");
     eprintln!("wrote {} and {}", csv_path.display(), png_path.display());
     Ok(())

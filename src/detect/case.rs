@@ -3,13 +3,15 @@
 //! (the CLI's help, the window's menu, sweep defaults, the (OC) list) is derived from it.
 //!
 //! A case is named by its lowercase name ([`Case::as_str`]) on the command line, in JSON and in
-//! file names; `ext:NAME` and `mlod-ext:NAME` name a detector in another process ([`external`]).
-//! `crate::refine::load_detector` is the factory that builds any case from a models folder by
+//! file names; `ext:NAME` and `mlod-ext:NAME` name a detector in another process (`crate::external`).
+//! `crate::cases::load_detector` is the factory that builds any case from a models folder by
 //! reading its row's [`Build`].
 
 use serde::{Deserialize, Serialize};
 
-use super::external;
+use std::collections::BTreeSet;
+use std::sync::Mutex;
+
 use crate::dataset::{Frame, LidarChannel};
 
 /// A case: a stage-1 detector, a wrapper around one, or an MLOD case (stage 1 + the refiner).
@@ -38,7 +40,7 @@ pub enum Case {
     /// listed and not accepted on the command line.
     ResultDrop,
     /// `ext:NAME`: the detector NAME, served by another process over `mlod-detector/1`
-    /// ([`external`]). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
+    /// (`crate::external`). Holds the whole case name (`ext:NAME`), interned, so a case stays `Copy`.
     Ext(&'static str),
     /// `mlod-ext:NAME`: the shipped refiner on the proposals of the external detector NAME (holds
     /// `mlod-ext:NAME`, interned).
@@ -343,9 +345,7 @@ impl Case {
     /// (OC) variant for an MLOD (OC) case.
     pub fn stage1(self) -> Case {
         match self.build() {
-            _ if matches!(self, Case::MlodExt(_)) => {
-                external::ext_case(self.external_name().unwrap_or_default())
-            }
+            _ if matches!(self, Case::MlodExt(_)) => ext_case(self.external_name().unwrap_or_default()),
             // A union case's "stage 1" is its fusion part (LiDAR-Top rides along).
             Build::Refine { proposals, .. } => proposals
                 .iter()
@@ -402,7 +402,7 @@ impl Case {
     /// The MLOD case built on this stage-1 case, if any.
     pub fn refined(self) -> Option<Case> {
         match self {
-            Case::Ext(_) => return self.external_name().map(external::mlod_ext_case),
+            Case::Ext(_) => return self.external_name().map(mlod_ext_case),
             _ if self.is_oc() => return self.without_oc().refined().and_then(Case::with_oc),
             _ => {}
         }
@@ -424,8 +424,8 @@ impl Case {
     /// The external detector's name of an `ext:NAME` or `mlod-ext:NAME` case.
     pub fn external_name(self) -> Option<&'static str> {
         match self {
-            Case::Ext(s) => s.strip_prefix(external::EXT_PREFIX),
-            Case::MlodExt(s) => s.strip_prefix(external::MLOD_EXT_PREFIX),
+            Case::Ext(s) => s.strip_prefix(EXT_PREFIX),
+            Case::MlodExt(s) => s.strip_prefix(MLOD_EXT_PREFIX),
             _ => None,
         }
     }
@@ -564,11 +564,11 @@ impl std::str::FromStr for Case {
         if let Some(c) = Case::LISTED.into_iter().find(|c| c.as_str() == s) {
             return Ok(c);
         }
-        if let Some(name) = s.strip_prefix(external::EXT_PREFIX) {
-            return external::check_name(name).map(|()| external::ext_case(name));
+        if let Some(name) = s.strip_prefix(EXT_PREFIX) {
+            return check_name(name).map(|()| ext_case(name));
         }
-        if let Some(name) = s.strip_prefix(external::MLOD_EXT_PREFIX) {
-            return external::check_name(name).map(|()| external::mlod_ext_case(name));
+        if let Some(name) = s.strip_prefix(MLOD_EXT_PREFIX) {
+            return check_name(name).map(|()| mlod_ext_case(name));
         }
         let names = Case::LISTED.map(|c| c.as_str()).join(", ");
         Err(format!(
@@ -593,4 +593,50 @@ impl<'de> Deserialize<'de> for Case {
             None => s.parse().map_err(serde::de::Error::custom),
         }
     }
+}
+
+/// The prefix of an external detector's case.
+pub const EXT_PREFIX: &str = "ext:";
+/// The prefix of the refiner on an external detector's proposals.
+pub const MLOD_EXT_PREFIX: &str = "mlod-ext:";
+
+/// Checks a detector name: 1–64 of ASCII letters, digits, `_`, `-` and `.`, not starting with
+/// `.` or `-` (it becomes part of case names and file names).
+pub fn check_name(name: &str) -> Result<(), String> {
+    let ok_char = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.');
+    let first_ok = name
+        .chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphanumeric() || c == '_');
+    if name.len() > 64 || !first_ok || !name.chars().all(ok_char) {
+        return Err(format!(
+            "'{name}' is not a detector name: 1-64 letters, digits, '_', '-' or '.', starting with a letter, digit or '_'"
+        ));
+    }
+    Ok(())
+}
+
+/// One string per distinct name, for the life of the process.
+fn intern(s: String) -> &'static str {
+    static NAMES: Mutex<BTreeSet<&'static str>> = Mutex::new(BTreeSet::new());
+    let mut names = match NAMES.lock() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    };
+    if let Some(found) = names.get(s.as_str()) {
+        return found;
+    }
+    let leaked: &'static str = Box::leak(s.into_boxed_str());
+    names.insert(leaked);
+    leaked
+}
+
+/// The case `ext:NAME` (NAME already checked).
+pub fn ext_case(name: &str) -> Case {
+    Case::Ext(intern(format!("{EXT_PREFIX}{name}")))
+}
+
+/// The case `mlod-ext:NAME` (NAME already checked).
+pub fn mlod_ext_case(name: &str) -> Case {
+    Case::MlodExt(intern(format!("{MLOD_EXT_PREFIX}{name}")))
 }

@@ -163,7 +163,7 @@ impl Stage1Model {
             .varmap
             .as_ref()
             .ok_or_else(|| DetectError::BadParameter("only a trainable model can be saved".into()))?;
-        let mut tensors = super::checkpoint::varmap_tensors(varmap)?;
+        let mut tensors = crate::detect::weights::varmap_tensors(varmap)?;
         tensors.extend(extra);
         let mut meta = extra_meta;
         meta.insert(
@@ -478,15 +478,19 @@ pub fn load_detector_with(dir: &Path, case: Case, voting: Voting) -> Result<Box<
     };
     if case.is_oc() || case.dropped().is_some() {
         return Err(DetectError::BadParameter(format!(
-            "{} wraps another detector: load it with mlod::refine::load_detector",
+            "{} wraps another detector: load it with mlod::cases::load_detector",
             case.paper_name()
         )));
     }
     Ok(match case {
-        Case::Ext(_) => Box::new(crate::detect::external::load(case)?),
+        Case::Ext(_) => {
+            return Err(DetectError::BadParameter(format!(
+                "{case} is an external detector: load it with mlod::cases::load_detector"
+            )))
+        }
         c if c.is_mlod() => {
             return Err(DetectError::BadParameter(format!(
-                "{} needs the stage-2 refiner: load it with mlod::refine::load_detector",
+                "{} needs the stage-2 refiner: load it with mlod::cases::load_detector",
                 case.paper_name()
             )))
         }

@@ -31,7 +31,6 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
-use super::fastconv;
 use super::voxel::GridConfig;
 
 /// Widths of the network; the defaults are the CPU-sized "tiny" configuration.
@@ -58,22 +57,6 @@ impl Default for NetConfig {
     }
 }
 
-/// `conv` (with its bias, if any) on candle's conv2d or on the fast path ([`fastconv`]).
-fn conv_apply(conv: &Conv2d, x: &Tensor, fast: bool) -> candle_core::Result<Tensor> {
-    if !fast {
-        return x.apply(conv);
-    }
-    let c = conv.config();
-    if c.dilation != 1 || c.groups != 1 {
-        return x.apply(conv);
-    }
-    let y = fastconv::conv2d(x, conv.weight(), c.stride, c.padding)?;
-    match conv.bias() {
-        None => Ok(y),
-        Some(b) => y.broadcast_add(&b.reshape((1, b.dims1()?, 1, 1))?),
-    }
-}
-
 /// Conv (no bias) + BatchNorm + ReLU.
 #[derive(Debug, Clone)]
 struct ConvBn {
@@ -94,8 +77,8 @@ impl ConvBn {
         })
     }
 
-    fn forward_t(&self, x: &Tensor, train: bool, fast: bool) -> candle_core::Result<Tensor> {
-        conv_apply(&self.conv, x, fast)?.apply_t(&self.bn, train)?.relu()
+    fn forward_t(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
+        x.apply(&self.conv)?.apply_t(&self.bn, train)?.relu()
     }
 }
 
@@ -118,21 +101,8 @@ impl DeconvBn {
         })
     }
 
-    fn forward_t(&self, x: &Tensor, train: bool, fast: bool) -> candle_core::Result<Tensor> {
-        let c = self.deconv.config();
-        let (_, _, kh, kw) = self.deconv.weight().dims4()?;
-        let y = if fast
-            && c.padding == 0
-            && c.output_padding == 0
-            && c.dilation == 1
-            && kh == c.stride
-            && kw == c.stride
-        {
-            fastconv::conv_transpose2d(x, self.deconv.weight(), c.stride)?
-        } else {
-            x.apply(&self.deconv)?
-        };
-        y.apply_t(&self.bn, train)?.relu()
+    fn forward_t(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
+        x.apply(&self.deconv)?.apply_t(&self.bn, train)?.relu()
     }
 }
 
@@ -153,13 +123,7 @@ impl MiddleLayers {
 
     /// `[1, C_in, n, n]` → `[1, mid, n/2, n/2]`.
     pub fn forward_t(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
-        self.forward_with(x, train, false)
-    }
-
-    /// [`Self::forward_t`] with the convolutions on the fast path when `fast`.
-    pub fn forward_with(&self, x: &Tensor, train: bool, fast: bool) -> candle_core::Result<Tensor> {
-        self.conv2
-            .forward_t(&self.conv1.forward_t(x, train, fast)?, train, fast)
+        self.conv2.forward_t(&self.conv1.forward_t(x, train)?, train)
     }
 }
 
@@ -219,24 +183,16 @@ impl Rpn {
 
     /// `[1, mid, h, w]` → per-anchor head outputs.
     pub fn forward_t(&self, x: &Tensor, train: bool) -> candle_core::Result<HeadOutput> {
-        self.forward_with(x, train, false)
-    }
-
-    /// [`Self::forward_t`] with the convolutions on the fast path when `fast`.
-    pub fn forward_with(&self, x: &Tensor, train: bool, fast: bool) -> candle_core::Result<HeadOutput> {
         let mut a = x.clone();
         for l in &self.block1 {
-            a = l.forward_t(&a, train, fast)?;
+            a = l.forward_t(&a, train)?;
         }
         let mut b = a.clone();
         for l in &self.block2 {
-            b = l.forward_t(&b, train, fast)?;
+            b = l.forward_t(&b, train)?;
         }
         let feat = Tensor::cat(
-            &[
-                self.up1.forward_t(&a, train, fast)?,
-                self.up2.forward_t(&b, train, fast)?,
-            ],
+            &[self.up1.forward_t(&a, train)?, self.up2.forward_t(&b, train)?],
             1,
         )?;
         let na = self.anchors_per_cell;
@@ -249,9 +205,9 @@ impl Rpn {
                 .reshape((h * w * na, k))
         };
         Ok(HeadOutput {
-            cls: per_anchor(conv_apply(&self.cls, &feat, fast)?, 1)?.squeeze(1)?,
-            reg: per_anchor(conv_apply(&self.reg, &feat, fast)?, 7)?,
-            dir: per_anchor(conv_apply(&self.dir, &feat, fast)?, 2)?,
+            cls: per_anchor(feat.apply(&self.cls)?, 1)?.squeeze(1)?,
+            reg: per_anchor(feat.apply(&self.reg)?, 7)?,
+            dir: per_anchor(feat.apply(&self.dir)?, 2)?,
         })
     }
 }
@@ -272,10 +228,6 @@ pub fn branch_prefix(branch_names: &[&str], name: &str) -> String {
 pub struct Stage1Net {
     pub branches: Vec<(String, MiddleLayers)>,
     pub rpn: Rpn,
-    /// Convolutions on the fast training path ([`fastconv`]: gemm forward and backward) instead
-    /// of candle's conv2d / conv_transpose2d; the same variables and the same function, to
-    /// float rounding. Off when built; the trainer turns it on unless told otherwise.
-    pub fast: bool,
 }
 
 impl Stage1Net {
@@ -298,7 +250,6 @@ impl Stage1Net {
         Ok(Self {
             branches,
             rpn: Rpn::new(cfg, vb.pp("rpn"))?,
-            fast: false,
         })
     }
 
@@ -309,7 +260,7 @@ impl Stage1Net {
         let mut fused: Option<Tensor> = None;
         for ((_, branch), x) in self.branches.iter().zip(inputs) {
             let Some(x) = x else { continue };
-            let f = branch.forward_with(x, train, self.fast)?;
+            let f = branch.forward_t(x, train)?;
             fused = Some(match fused {
                 None => f,
                 Some(g) => g.maximum(&f)?,
@@ -319,8 +270,7 @@ impl Stage1Net {
     }
 
     pub fn forward_t(&self, inputs: &[Option<Tensor>], train: bool) -> candle_core::Result<HeadOutput> {
-        self.rpn
-            .forward_with(&self.features(inputs, train)?, train, self.fast)
+        self.rpn.forward_t(&self.features(inputs, train)?, train)
     }
 
     /// Draws every conv weight from N(0, 2/fan_in) (He), head weights from N(0, 0.01²), with a

@@ -403,6 +403,20 @@ pub fn default_models_dir() -> PathBuf {
         .join("models")
 }
 
+/// Every variable of a candle variable map by name (what a trainable model saves).
+pub fn varmap_tensors(
+    varmap: &candle_nn::VarMap,
+) -> Result<BTreeMap<String, candle_core::Tensor>, DetectError> {
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| DetectError::BadParameter("variable map lock poisoned".into()))?;
+    Ok(data
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

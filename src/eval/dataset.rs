@@ -233,7 +233,7 @@ pub struct EvalOptions {
     /// With `per_box`: AP again with each part of the matched boxes taken from the truth.
     pub attribution: bool,
     /// Only the validation scenes of a training dataset (every 10th scene, the split that
-    /// training holds out: [`crate::detect::train::split`]), for tuning without the test split.
+    /// training holds out: [`crate::train::stage1::split`]), for tuning without the test split.
     pub validation_only: bool,
     /// Only these samples, in this order (a sweep's spread subset); before `samples`.
     pub only: Option<Vec<String>>,

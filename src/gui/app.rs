@@ -26,12 +26,12 @@ use super::overlay::{self, OverlayInput};
 use super::panels::{self, Panels};
 use super::state::{camera_from_pose, pose_from_camera};
 use super::state::{Loaded, Shell, Toast};
-use super::viewport::{self, Camera, SceneHandle, View, Viewport};
 use crate::color::ColorMode;
 use crate::dataset::{Frame, LidarChannel};
 use crate::detect::weights::default_models_dir;
 use crate::detect::Case;
 use crate::pipeline::{fuse, BoxStats, FusedCloud};
+use crate::render::{Camera, SceneHandle, View, Viewport};
 use crate::session::Session;
 use measure::Measure;
 
@@ -120,7 +120,7 @@ impl MlodApp {
     /// Creates the app, installs the viewport's GPU resources and starts loading the dataset.
     pub fn new(cc: &eframe::CreationContext<'_>, options: AppOptions) -> Self {
         if let Some(rs) = cc.wgpu_render_state.as_ref() {
-            viewport::install(rs);
+            crate::render::install(rs);
         }
         let recent = cc
             .storage
@@ -202,7 +202,7 @@ impl MlodApp {
             consent_notice: None,
             session,
         };
-        app.loaded.ground_gate_m = crate::detect::ground_gate::manifest_gate(&app.models_dir);
+        app.loaded.ground_gate_m = crate::cases::ground_gate::manifest_gate(&app.models_dir);
         app.loaded.models = app.models_dir.clone();
         let path = app.session.dataset.clone();
         app.open_dataset(path);

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use super::{viewport, AppOptions, GuiError};
+use crate::gui::{AppOptions, GuiError};
 
 /// Steps of "play α" in the window, and of a clip by default.
 pub const PLAY_FRAMES: usize = 40;
@@ -85,8 +85,8 @@ pub fn render_clip(
 ) -> Result<Vec<image::RgbaImage>, GuiError> {
     clip.validate()?;
     let mut app = super::headless_loaded(options)?;
-    let gpu = viewport::HeadlessGpu::new()?;
-    let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
+    let gpu = crate::render::HeadlessGpu::new()?;
+    let mut renderer = crate::render::OffscreenRenderer::new(&gpu.device, &gpu.queue);
     let mut frames = Vec::with_capacity(clip.frames);
     for k in 0..clip.frames {
         let alpha = clip.alpha(k);

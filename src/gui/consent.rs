@@ -13,8 +13,8 @@ use std::collections::BTreeSet;
 
 use eframe::egui;
 
-use crate::detect::external::{self, ExternalSpec};
 use crate::detect::Case;
+use crate::external::{self, ExternalSpec};
 use crate::session::Session;
 
 /// The window's storage key of the consents given.

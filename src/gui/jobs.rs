@@ -9,12 +9,13 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 
 use crate::calib::{Calibration, IcpConfig, OcPrior};
+use crate::cases::ground_gate::GateChoice;
+use crate::cases::{load_mlod, Mlod};
 use crate::dataset::{Dataset, Frame, SampleSummary};
-use crate::detect::ground_gate::GateChoice;
 use crate::detect::model::Voting;
 use crate::detect::{Case, Detection, Detector};
 use crate::pipeline::FuseParams;
-use crate::refine::{load_mlod, Mlod, Refined};
+use crate::refine::Refined;
 
 /// A loaded detector: a stage-1 case, or an MLOD case (stage 1 and the refiner).
 #[derive(Clone)]
@@ -35,7 +36,7 @@ impl LoadedDetector {
         }
         // Behind the models folder's ground gate (`mlod train tune-gate`) unless switched off, as
         // `mlod detect` applies it.
-        let d = crate::refine::load_gated(models, case, gate).map_err(|e| e.to_string())?;
+        let d = crate::cases::load_gated(models, case, gate).map_err(|e| e.to_string())?;
         Ok(Self::Stage1(Arc::from(d)))
     }
 
@@ -106,7 +107,7 @@ pub enum JobResult {
     /// A failure scan (its id: a cancelled or superseded one is dropped).
     Scan {
         id: u64,
-        result: Result<Vec<crate::failures::SampleFailures>, String>,
+        result: Result<Vec<crate::analysis::failures::SampleFailures>, String>,
         millis: f64,
     },
     /// An exported clip: frames written, bytes.
@@ -172,7 +173,7 @@ impl Jobs {
         id: u64,
         dataset: Arc<Dataset>,
         (models, gate): (PathBuf, GateChoice),
-        cfg: crate::failures::ScanConfig,
+        cfg: crate::analysis::failures::ScanConfig,
         done: Arc<std::sync::atomic::AtomicUsize>,
         cancel: Arc<std::sync::atomic::AtomicBool>,
     ) {
@@ -180,7 +181,7 @@ impl Jobs {
         self.spawn(move || {
             let start = std::time::Instant::now();
             let scan = || {
-                crate::failures::scan(&dataset, &models, gate, &cfg, &cancel, &|d, _| {
+                crate::analysis::failures::scan(&dataset, &models, gate, &cfg, &cancel, &|d, _| {
                     done.store(d, std::sync::atomic::Ordering::Relaxed);
                     if let Some(ctx) = &repaint {
                         ctx.request_repaint();

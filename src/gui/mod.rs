@@ -11,7 +11,6 @@ mod jobs;
 mod overlay;
 mod panels;
 mod state;
-pub mod viewport;
 
 use std::path::{Path, PathBuf};
 
@@ -43,7 +42,7 @@ pub enum GuiError {
     )]
     Window(#[from] eframe::Error),
     #[error(transparent)]
-    Viewport(#[from] viewport::ViewportError),
+    Viewport(#[from] crate::render::ViewportError),
     #[error("cannot write {path}: {message}")]
     Write { path: PathBuf, message: String },
     #[error("{0}")]
@@ -72,7 +71,7 @@ pub fn run(options: AppOptions) -> Result<(), GuiError> {
 
 /// Writes an RGBA image as PNG, atomically.
 pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
-    crate::plot::write_png(
+    crate::analysis::plot::write_png(
         path,
         img.width(),
         img.height(),
@@ -90,8 +89,8 @@ pub fn write_png(path: &Path, img: &image::RgbaImage) -> Result<(), GuiError> {
 /// camera, a 3-pixel grey gap), as the window splits its viewport.
 pub fn screenshot(options: AppOptions, size: (u32, u32)) -> Result<image::RgbaImage, GuiError> {
     let app = headless_loaded(options)?;
-    let gpu = viewport::HeadlessGpu::new()?;
-    let mut renderer = viewport::OffscreenRenderer::new(&gpu.device, &gpu.queue);
+    let gpu = crate::render::HeadlessGpu::new()?;
+    let mut renderer = crate::render::OffscreenRenderer::new(&gpu.device, &gpu.queue);
     let (view, scene) = app.viewport();
     let Some(scene_b) = app.compare_scene() else {
         return Ok(renderer.render(scene, view, size)?);

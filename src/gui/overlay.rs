@@ -8,9 +8,9 @@ use eframe::egui;
 use egui::Color32;
 
 use super::state::Loaded;
-use super::viewport::{self, SceneHandle, Viewport};
 use crate::eval::{GtOutcome, PredOutcome};
 use crate::pipeline::{box_stats, BoxStats};
+use crate::render::{SceneHandle, Viewport};
 use crate::session::{BoxLayer, Session};
 
 /// What the overlay reads.
@@ -39,7 +39,7 @@ pub struct SceneLabel {
 pub fn annotate(
     painter: &egui::Painter,
     rect: egui::Rect,
-    camera: &viewport::Camera,
+    camera: &crate::render::Camera,
     labels: &[SceneLabel],
     playing_alpha: Option<f64>,
 ) {
@@ -104,7 +104,7 @@ pub fn show(
     scene: &SceneHandle,
     input: &OverlayInput<'_>,
 ) -> OverlayOutput {
-    let out = viewport::show(ui, view, scene);
+    let out = crate::render::show(ui, view, scene);
     annotate(
         ui.painter(),
         out.response.rect,

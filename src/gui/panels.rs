@@ -26,8 +26,8 @@ pub use help::help_overlay;
 pub use sweep::sweep_window;
 
 use super::state::{channel_counts, lidar_label, Action, FilePurpose, Loaded, Shell};
-use super::viewport::{Projection, View, Viewport};
 use crate::dataset::LidarChannel;
+use crate::render::{Projection, View, Viewport};
 use crate::session::Session;
 use crate::uncertainty::{ExtrinsicNoise, Linearization};
 

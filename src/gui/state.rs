@@ -11,14 +11,14 @@ use std::sync::Arc;
 use eframe::egui;
 use egui::{Color32, RichText};
 
-use super::viewport::{Camera, Projection, View};
+use crate::analysis::inspect::{PointsInside, PredictionDetails};
 use crate::dataset::{Dataset, Frame, LidarChannel, SampleSummary};
 use crate::detect::{Case, Detection};
 use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::{iou_3d, IouKind};
-use crate::inspect::{PointsInside, PredictionDetails};
 use crate::pipeline::FusedCloud;
 use crate::refine::Refined;
+use crate::render::{Camera, Projection, View};
 use crate::session::{BoxLayer, CameraPose, DetectionSettings, FailureScope};
 
 /// Ground-truth box colour (paper: green).
@@ -89,7 +89,7 @@ pub enum Action {
     /// Stop the scan in flight.
     CancelScan,
     /// Load a failure's sample and select and focus its box.
-    GoToFailure(crate::failures::BoxFailure),
+    GoToFailure(crate::analysis::failures::BoxFailure),
 }
 
 /// A message shown at the bottom right for a few seconds.
@@ -267,7 +267,7 @@ pub struct FailureBrowser {
         Arc<std::sync::atomic::AtomicBool>,
     )>,
     /// The last finished scan: its case, α and seed, and the samples worst first.
-    pub result: Option<(Case, f64, u64, Vec<crate::failures::SampleFailures>)>,
+    pub result: Option<(Case, f64, u64, Vec<crate::analysis::failures::SampleFailures>)>,
     /// Wall time of the last scan (ms).
     pub millis: f64,
     /// The case, α and seed of the scan in flight.
@@ -294,7 +294,7 @@ impl Default for FailureBrowser {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SweepView {
     pub dir: PathBuf,
-    pub progress: crate::sweep::SweepProgress,
+    pub progress: crate::analysis::sweep::SweepProgress,
 }
 
 /// "Play α": α steps from 0 to `alpha_to` in `frames` equal steps (the seed, hence the drift's

@@ -16,21 +16,13 @@
 //! - [`train`]: the training loop (§V-A-6 augmentation, AdamW, resumable checkpoints, loss CSV).
 //! - [`model`]: a trained refiner, its decoding, and the [`model::Mlod`] detectors.
 
-pub mod active;
 pub mod coding;
 pub mod infer;
-pub mod loss;
 pub mod model;
-pub mod native;
 pub mod net;
 pub mod points;
-pub mod proposals;
-pub mod train;
 
-pub use model::{
-    load_detector, load_detector_oc, load_gated, load_mlod, load_mlod_with, redecode, Decoding, Mlod,
-    MlodRun, Refined, Refiner, ScoreRule,
-};
+pub use model::{redecode, Decoding, MlodRun, Refined, Refiner, ScoreRule, UNION_NMS_IOU};
 
 /// Errors of the refiner.
 #[derive(Debug, thiserror::Error)]

@@ -13,11 +13,7 @@
 
 #![deny(clippy::indexing_slicing)]
 
-use crate::calib::{IcpConfig, OcPrior};
-use crate::detect::oc::OcDetector;
-use crate::detect::union::{UnionDetector, UNION_NMS_IOU};
 use std::path::Path;
-use std::sync::Arc;
 
 use candle_core::Tensor;
 
@@ -26,12 +22,14 @@ use super::infer::{FastRefiner, RefinerRun};
 use super::net::{proposal_features, RefinerConfig, PROPOSAL_FEATURES};
 use super::points::{gather, sample, CloudIndex};
 use super::RefineError;
-use crate::dataset::Frame;
-use crate::detect::model::{load_detector_with, Voting};
 use crate::detect::weights::{read_weights, Manifest, RefineTuning};
-use crate::detect::{Case, DetectError, Detection, Detector};
+use crate::detect::{Case, Detection};
 use crate::geometry::{nms, vote, Box3d, IouKind};
-use crate::pipeline::{fuse, FuseParams, FusedCloud};
+use crate::pipeline::FusedCloud;
+
+/// 3D IoU above which the NMS after refinement suppresses a union case's box (chosen on the
+/// validation scenes, docs/robustness.md).
+pub const UNION_NMS_IOU: f64 = 0.5;
 
 /// The file name of the shipped refiner in a models folder.
 pub const REFINER_FILE: &str = "refiner.safetensors";
@@ -431,177 +429,6 @@ pub struct MlodRun {
     pub refined: Vec<Refined>,
     /// The fused cloud both saw.
     pub cloud: FusedCloud,
-}
-
-/// An MLOD case: a fusion detector followed by the refiner.
-pub struct Mlod {
-    case: Case,
-    stage1: Box<dyn Detector>,
-    refiner: Arc<Refiner>,
-}
-
-impl Mlod {
-    pub fn new(case: Case, stage1: Box<dyn Detector>, refiner: Arc<Refiner>) -> Self {
-        Self {
-            case,
-            stage1,
-            refiner,
-        }
-    }
-
-    /// Makes this case decode as `d` says (false, and nothing changed, when its refiner is
-    /// shared with another holder). `mlod train tune-refiner` runs without NMS this way, so that
-    /// [`redecode`] sees every refined box.
-    pub fn set_decoding(&mut self, d: Decoding) -> bool {
-        match Arc::get_mut(&mut self.refiner) {
-            Some(r) => {
-                r.decoding = d;
-                true
-            }
-            None => false,
-        }
-    }
-
-    /// The refiner it runs.
-    pub fn refiner(&self) -> &Refiner {
-        &self.refiner
-    }
-
-    /// Proposals, refinements and the cloud of one frame (fused once, for both stages).
-    pub fn run(&self, frame: &Frame, params: &FuseParams) -> Result<MlodRun, DetectError> {
-        let cloud = fuse(frame, params)?;
-        let (proposals, refined) = self.run_fused(frame, &cloud)?;
-        Ok(MlodRun {
-            proposals,
-            refined,
-            cloud,
-        })
-    }
-
-    /// Stage 1's proposals on `cloud` and their refinements.
-    fn run_fused(
-        &self,
-        frame: &Frame,
-        cloud: &FusedCloud,
-    ) -> Result<(Vec<Detection>, Vec<Refined>), DetectError> {
-        let proposals = self.stage1.detect_fused(frame, cloud)?;
-        let refined = self
-            .refiner
-            .refine(cloud, &proposals)
-            .map_err(|e| DetectError::Refiner(e.to_string()))?;
-        Ok((proposals, refined))
-    }
-}
-
-impl Detector for Mlod {
-    fn case(&self) -> Case {
-        self.case
-    }
-
-    fn categories(&self) -> Vec<String> {
-        self.stage1.categories()
-    }
-
-    fn detect_fused(&self, frame: &Frame, cloud: &FusedCloud) -> Result<Vec<Detection>, DetectError> {
-        let (_, refined) = self.run_fused(frame, cloud)?;
-        Ok(refined.into_iter().map(|r| r.detection).collect())
-    }
-}
-
-/// The shipped detector of any case (stage 1, or MLOD with the folder's refiner), decoding as the
-/// manifest says, with the caller's box voting in stage 1.
-pub fn load_detector(dir: &Path, case: Case, voting: Voting) -> Result<Box<dyn Detector>, DetectError> {
-    load_detector_oc(
-        dir,
-        case,
-        voting,
-        &IcpConfig::default(),
-        OcPrior::default(),
-        crate::detect::drop::DROP_TRACE,
-    )
-}
-
-/// [`load_detector`] with the folder's voting, behind the ground gate `gate` gives its case (the
-/// folder's own for a stage-1 case with `GateChoice::Manifest`): what the window and the failure
-/// scan run.
-pub fn load_gated(
-    dir: &Path,
-    case: Case,
-    gate: crate::detect::ground_gate::GateChoice,
-) -> Result<Box<dyn Detector>, DetectError> {
-    crate::detect::ground_gate::gated(load_detector(dir, case, Voting::Manifest)?, gate, dir)
-}
-
-/// [`load_detector`] with the online calibration's settings of an (OC) case and the threshold
-/// of `input-drop`.
-pub fn load_detector_oc(
-    dir: &Path,
-    case: Case,
-    voting: Voting,
-    icp: &IcpConfig,
-    prior: OcPrior,
-    drop_trace: f32,
-) -> Result<Box<dyn Detector>, DetectError> {
-    if case.is_oc() {
-        let inner = load_detector_oc(dir, case.without_oc(), voting, icp, prior, drop_trace)?;
-        return Ok(Box::new(OcDetector::new(case, inner, *icp, prior)?));
-    }
-    if case.dropped().is_some() {
-        return load_stage1(dir, case, voting, drop_trace);
-    }
-    if !case.is_mlod() {
-        return load_detector_with(dir, case, voting);
-    }
-    Ok(Box::new(load_mlod_with(dir, case, voting, drop_trace)?))
-}
-
-/// A stage-1 case of a models folder, a "certain points only" case (`input-drop`,
-/// `result-drop`) wrapping the fusion case it drops points for.
-fn load_stage1(
-    dir: &Path,
-    case: Case,
-    voting: Voting,
-    drop_trace: f32,
-) -> Result<Box<dyn Detector>, DetectError> {
-    match case.dropped() {
-        Some(base) => {
-            let inner = load_detector_with(dir, base, voting)?;
-            Ok(Box::new(crate::detect::drop::DropDetector::new(
-                inner, drop_trace,
-            )?))
-        }
-        None => load_detector_with(dir, case, voting),
-    }
-}
-
-/// An MLOD case of a models folder (its stage-1 detector and the folder's refiner).
-pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectError> {
-    load_mlod_with(dir, case, voting, crate::detect::drop::DROP_TRACE)
-}
-
-/// [`load_mlod`] with the tr(Ξ) threshold of a stage 1 that drops uncertain points
-/// (`mlod-i-drop`).
-pub fn load_mlod_with(dir: &Path, case: Case, voting: Voting, drop_trace: f32) -> Result<Mlod, DetectError> {
-    if !case.is_mlod() || case.is_oc() {
-        return Err(DetectError::BadParameter(format!(
-            "{} is not an MLOD case",
-            case.paper_name()
-        )));
-    }
-    let stage1 = if case.is_union() {
-        let parts = case
-            .proposal_cases()
-            .into_iter()
-            .map(|c| load_stage1(dir, c, voting, drop_trace))
-            .collect::<Result<Vec<_>, _>>()?;
-        Box::new(UnionDetector::new(case, parts)?)
-    } else {
-        load_stage1(dir, case.stage1(), voting, drop_trace)?
-    };
-    let mut refiner =
-        Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
-    refiner.decoding = refiner.decoding.for_case(case);
-    Ok(Mlod::new(case, stage1, Arc::new(refiner)))
 }
 
 #[cfg(test)]

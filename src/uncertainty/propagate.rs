@@ -5,7 +5,7 @@
 //!
 //! * [`Linearization::Separate`]: H = [I, −(R̄p)^, R̄], eq. 6 as written. This is the exact
 //!   Jacobian of the way we inject noise (rotation perturbed on the left of R̄, translation added
-//!   separately), so it is the default; `tests/monte_carlo.rs` confirms it within 3 %.
+//!   separately), so it is the default; `tests/core/monte_carlo.rs` confirms it within 3 %.
 //! * [`Linearization::Se3Left`]: H = [I, −(R̄p + t̄)^, R̄], the whole transform perturbed on the
 //!   left, T = exp(ξ^)T̄. Only this one reproduces the worked example matrix of §III-B.
 //!

@@ -404,12 +404,10 @@ fn protocol_overhead() {
             lidar(LidarChannel::FrontRight, 2 * N / 3..N),
         ],
     };
-    let spec = mlod::detect::external::ExternalSpec::new(
-        "instant",
-        vec!["python3".into(), FAKE.into(), "instant".into()],
-    )
-    .unwrap();
-    let det = mlod::detect::external::ExternalDetector::new(spec);
+    let spec =
+        mlod::external::ExternalSpec::new("instant", vec!["python3".into(), FAKE.into(), "instant".into()])
+            .unwrap();
+    let det = mlod::external::ExternalDetector::new(spec);
     for _ in 0..3 {
         det.detect_cloud("warm", &cloud).unwrap();
     }
@@ -477,7 +475,7 @@ fn the_cli_never_runs_a_session_s_detector() {
     let words = ["python3", FAKE, "instant", &marker].map(String::from).to_vec();
     let mut s = mlod::session::Session::new(DATA.into());
     s.detection.case = "ext:shared".parse().unwrap();
-    s.external = vec![mlod::detect::external::ExternalSpec::new("shared", words).unwrap()];
+    s.external = vec![mlod::external::ExternalSpec::new("shared", words).unwrap()];
     let path = dir.join("shared.session.json");
     s.save(&path).unwrap();
     let gif = dir.join("clip.gif");

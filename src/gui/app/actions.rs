@@ -8,7 +8,6 @@ use eframe::egui;
 
 use super::MlodApp;
 use crate::gui::state::Action;
-use crate::gui::viewport;
 use crate::session::Session;
 
 impl MlodApp {
@@ -35,7 +34,7 @@ impl MlodApp {
                 },
                 Action::ExportPng(path) => {
                     let result = match frame.and_then(|f| f.wgpu_render_state()) {
-                        Some(rs) => viewport::render_offscreen(
+                        Some(rs) => crate::render::render_offscreen(
                             &rs.device,
                             &rs.queue,
                             &self.scene,

@@ -12,7 +12,6 @@ use super::MlodApp;
 use crate::detect::Case;
 use crate::gui::jobs::DetectOutput;
 use crate::gui::state::{DetectionCounts, DetectionView};
-use crate::gui::viewport;
 
 /// Gap between the two halves, UI points.
 const GAP: f32 = 3.0;
@@ -28,7 +27,7 @@ impl MlodApp {
     }
 
     /// The compare half's scene, in compare mode.
-    pub fn compare_scene(&self) -> Option<&crate::gui::viewport::SceneHandle> {
+    pub fn compare_scene(&self) -> Option<&crate::render::SceneHandle> {
         self.compare_case().map(|_| &self.scene_b)
     }
 
@@ -113,7 +112,7 @@ impl MlodApp {
         let mut a = ui.new_child(egui::UiBuilder::new().max_rect(left).id_salt("mlod_view_a"));
         self.central_main(&mut a);
         let mut b = ui.new_child(egui::UiBuilder::new().max_rect(right).id_salt("mlod_view_b"));
-        viewport::show(&mut b, &mut self.view, &self.scene_b);
+        crate::render::show(&mut b, &mut self.view, &self.scene_b);
         let labels = self.scene_labels(false);
         let alpha = self.shell.play.map(|_| self.session.fuse.perturbation.alpha);
         crate::gui::overlay::annotate(b.painter(), right, &self.view.camera, &labels, alpha);

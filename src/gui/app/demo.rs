@@ -21,8 +21,8 @@ impl MlodApp {
 
     /// Reads a sweep folder (finished or not) and opens the sweep window on it; an error keeps
     /// the window as it was.
-    pub fn open_sweep(&mut self, dir: &std::path::Path) -> Result<(), crate::sweep::SweepError> {
-        let progress = crate::sweep::progress(dir)?;
+    pub fn open_sweep(&mut self, dir: &std::path::Path) -> Result<(), crate::analysis::sweep::SweepError> {
+        let progress = crate::analysis::sweep::progress(dir)?;
         self.session.sweep = Some(dir.to_path_buf());
         self.shell.sweep = Some(crate::gui::state::SweepView {
             dir: dir.to_path_buf(),

@@ -17,7 +17,7 @@ use crate::gui::state::{
     LINK_COLOR, PROPOSAL_COLOR, REFINED_COLOR, REFINED_FALSE_POSITIVE_COLOR, SELECTED_COLOR,
     SELECTED_HALO_COLOR,
 };
-use crate::gui::viewport::{box_lines, ego_lines, grid_lines, LineVertex};
+use crate::render::{box_lines, ego_lines, grid_lines, LineVertex};
 
 impl MlodApp {
     /// Runs the session's case on the sample on screen, in the background. A request while one

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize};
 use std::sync::Arc;
 
 use super::MlodApp;
-use crate::failures::{BoxFailure, FailureKind, SampleFailures, ScanConfig};
+use crate::analysis::failures::{BoxFailure, FailureKind, SampleFailures, ScanConfig};
 use crate::gui::state::FailureBrowser;
 use crate::session::{BoxLayer, BoxSelection, FailureScope};
 

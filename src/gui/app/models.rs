@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use super::MlodApp;
-use crate::detect::ground_gate::GateChoice;
+use crate::cases::ground_gate::GateChoice;
 use crate::detect::weights::Manifest;
 
 impl MlodApp {

@@ -10,7 +10,7 @@ use crate::color::{auto_range, colorize, histogram, scalars, ColorMode, Scale};
 use crate::dataset::LidarChannel;
 use crate::gui::overlay::SceneLabel;
 use crate::gui::state::{color32, SelectionDetails, SELECTED_COLOR};
-use crate::gui::viewport::ego_lines;
+use crate::render::ego_lines;
 use crate::session::BoxLayer;
 use crate::uncertainty::UNCERTAIN_TRACE;
 

@@ -2,13 +2,13 @@
 //! object it is on ([`BoxSelection`]: the ground-truth annotation, else its position), and every
 //! re-fuse, re-run or re-match finds that object again among the boxes on screen — so the
 //! selection survives α changes and a saved session reopens with it. The details panel's numbers
-//! come from [`crate::inspect`]; F points the camera at the box, Escape clears it.
+//! come from [`crate::analysis::inspect`]; F points the camera at the box, Escape clears it.
 
 use super::MlodApp;
+use crate::analysis::inspect::{points_inside, prediction_details, TruthRef};
 use crate::eval::PredOutcome;
 use crate::geometry::{iou_3d, Box3d};
 use crate::gui::state::SelectionDetails;
-use crate::inspect::{points_inside, prediction_details, TruthRef};
 use crate::session::{BoxLayer, BoxSelection};
 
 impl MlodApp {

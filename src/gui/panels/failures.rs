@@ -9,7 +9,7 @@ use eframe::egui;
 use egui::RichText;
 
 use super::Panels;
-use crate::failures::{BoxFailure, FailureKind};
+use crate::analysis::failures::{BoxFailure, FailureKind};
 use crate::gui::state::{color32, Action, FailureSort, FALSE_POSITIVE_COLOR, GT_COLOR, SELECTED_COLOR};
 use crate::session::FailureScope;
 

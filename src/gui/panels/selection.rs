@@ -7,12 +7,12 @@ use eframe::egui;
 use egui::{Color32, RichText, Sense};
 
 use super::Panels;
+use crate::analysis::inspect::{trace_bin_edge, PointsInside, TRACE_BINS};
 use crate::color::turbo;
 use crate::eval::BoxError;
 use crate::gui::state::{
     color32, lidar_label, Action, SelectionDetails, GT_COLOR, PROPOSAL_COLOR, REFINED_COLOR, SELECTED_COLOR,
 };
-use crate::inspect::{trace_bin_edge, PointsInside, TRACE_BINS};
 use crate::session::BoxLayer;
 
 pub(super) fn selection(p: &mut Panels<'_>, ui: &mut egui::Ui) {

@@ -7,11 +7,11 @@ use eframe::egui;
 use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke};
 
 use super::Panels;
+use crate::analysis::plot::{series_styles, SERIES_COLOURS};
 use crate::gui::state::SweepView;
-use crate::plot::{series_styles, SERIES_COLOURS};
 
 /// Each curve's colour and whether it is dashed, as the folder's `ap_vs_alpha.png` draws it.
-fn curve_styles(prog: &crate::sweep::SweepProgress) -> Vec<(Color32, bool)> {
+fn curve_styles(prog: &crate::analysis::sweep::SweepProgress) -> Vec<(Color32, bool)> {
     series_styles(prog.curves.iter().map(|(name, _)| name.as_str()))
         .into_iter()
         .map(|(k, dashed)| {

@@ -1,0 +1,9 @@
+//! Studies over many frames: Table II sweeps ([`sweep`]), failure scans ([`failures`]), the
+//! refiner's active points (§V-C, [`active`]), per-box inspection ([`inspect`]) and the PNG plots
+//! they write ([`plot`]).
+
+pub mod active;
+pub mod failures;
+pub mod inspect;
+pub mod plot;
+pub mod sweep;
