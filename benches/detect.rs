@@ -126,5 +126,62 @@ fn bench_refine(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench, bench_refine);
+/// The protocol's cost per frame on mlod's side with an external detector that answers at once
+/// (`tests/fixtures/detectors/fake.py instant`, python3): 150k points written, the request sent,
+/// the answer read.
+fn bench_external(c: &mut Criterion) {
+    use mlod::dataset::LidarChannel;
+    use mlod::pipeline::{FusedCloud, FusedLidar};
+    const N: usize = 150_000;
+    let lidar = |channel, range| FusedLidar {
+        channel,
+        range,
+        nominal: mlod::geometry::Pose::identity(),
+        noise: mlod::uncertainty::ExtrinsicNoise::ZERO,
+        applied: mlod::geometry::Pose::identity(),
+        calibrated: false,
+    };
+    let f = |k: usize| {
+        (0..N)
+            .map(|i| ((i * k) % 1000) as f32 * 0.01)
+            .collect::<Vec<f32>>()
+    };
+    let cloud = FusedCloud {
+        x: f(7),
+        y: f(11),
+        z: f(13),
+        intensity: f(17),
+        source: (0..N).map(|i| (i % 3) as u8).collect(),
+        trace: f(19),
+        lidars: vec![
+            lidar(LidarChannel::Top, 0..N / 3),
+            lidar(LidarChannel::FrontLeft, N / 3..2 * N / 3),
+            lidar(LidarChannel::FrontRight, 2 * N / 3..N),
+        ],
+    };
+    let spec = mlod::external::ExternalSpec::new(
+        "instant",
+        vec![
+            "python3".into(),
+            concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/detectors/fake.py").into(),
+            "instant".into(),
+        ],
+    )
+    .expect("spec");
+    let det = mlod::external::ExternalDetector::new(spec);
+    det.detect_cloud("warm", &cloud)
+        .expect("the fake detector answers");
+    let mut g = c.benchmark_group("external_protocol");
+    g.sample_size(20);
+    let mut i = 0u64;
+    g.bench_function("150k_points", |b| {
+        b.iter(|| {
+            i += 1;
+            det.detect_cloud(&format!("s{i}"), &cloud).expect("answer")
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_refine, bench_external);
 criterion_main!(benches);

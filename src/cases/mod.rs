@@ -96,7 +96,7 @@ pub fn load_mlod(dir: &Path, case: Case, voting: Voting) -> Result<Mlod, DetectE
 }
 
 /// [`load_mlod`] with the tr(Ξ) threshold of a stage 1 that drops uncertain points
-/// (`mlod-i-drop`).
+/// (`mlod-ir-drop`).
 pub fn load_mlod_with(dir: &Path, case: Case, voting: Voting, drop_trace: f32) -> Result<Mlod, DetectError> {
     if !case.is_mlod() || case.is_oc() {
         return Err(DetectError::BadParameter(format!(

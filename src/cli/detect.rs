@@ -35,8 +35,8 @@ pub struct DetectorRun {
     /// the covariance ICP estimated; `alpha`: the prior Θ(α), as without calibration.
     #[arg(long, default_value = "icp")]
     pub oc_prior: mlod::calib::OcPrior,
-    /// `input-drop`, `mlod-i-drop`: points with tr(Ξ) above this (m²) are removed before Input
-    /// Fusion (default: the threshold chosen on the validation scenes).
+    /// `input-drop`, `mlod-ir-drop`: points with tr(Ξ) above this (m²) are removed before the
+    /// stage-1 networks (default: the threshold chosen on the validation scenes).
     #[arg(long, default_value_t = mlod::cases::drop::DROP_TRACE, value_parser = super::args::parse_trace_threshold)]
     pub drop_trace: f32,
     /// Set every point's intensity to this value before the detector runs (real Lyft data holds

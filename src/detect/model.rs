@@ -124,12 +124,7 @@ impl Stage1Model {
             path: path.to_path_buf(),
             what,
         };
-        let cfg = w
-            .metadata
-            .get("mlod.config")
-            .ok_or_else(|| bad("no mlod.config in its metadata".into()))?;
-        let config: ModelConfig =
-            serde_json::from_str(cfg).map_err(|e| bad(format!("bad mlod.config: {e}")))?;
+        let config = w.model_config()?;
         if config.case != case {
             return Err(DetectError::WrongCase {
                 path: path.to_path_buf(),

@@ -37,8 +37,9 @@ pub struct GridConfig {
     /// for data whose intensity is not real or differs between sensors).
     #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub intensity: bool,
-    /// Whether the voxel feature also holds the mean tr(Ξ) of the voxel's points (m², issue 32:
-    /// the `input-tr` case); absent, so false, in every other model.
+    /// Whether the voxel feature also holds the mean tr(Ξ) of the voxel's points (m²): the
+    /// `input-tr` experiment of issue 32, retired (docs/notes); no command trains it now, a weights
+    /// file of it still loads. Absent, so false, in every other model.
     #[serde(default, skip_serializing_if = "is_false")]
     pub trace: bool,
 }

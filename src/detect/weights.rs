@@ -72,6 +72,22 @@ pub struct WeightsFile {
     pub metadata: BTreeMap<String, String>,
 }
 
+impl WeightsFile {
+    /// The stage-1 model configuration its metadata holds (`mlod.config`): the one reader of a
+    /// weights file's configuration (loading, resuming, the manifest's intensity question).
+    pub fn model_config(&self) -> Result<super::config::ModelConfig, DetectError> {
+        let bad = |what: String| DetectError::Weights {
+            path: self.path.clone(),
+            what,
+        };
+        let cfg = self
+            .metadata
+            .get("mlod.config")
+            .ok_or_else(|| bad("no mlod.config in its metadata".into()))?;
+        serde_json::from_str(cfg).map_err(|e| bad(format!("bad mlod.config: {e}")))
+    }
+}
+
 /// Reads a safetensors file; with `expected_sha256` the bytes must hash to it.
 pub fn read_weights(path: &Path, expected_sha256: Option<&str>) -> Result<WeightsFile, DetectError> {
     let bytes = std::fs::read(path).map_err(|e| crate::io::IoError::new("cannot read", path, e))?;
@@ -357,8 +373,7 @@ pub fn models_read_intensity(dir: &Path) -> bool {
     let config = || -> Option<super::config::ModelConfig> {
         let manifest = Manifest::load(dir).ok()?;
         let path = manifest.entry(dir, super::Case::Top).ok()?.path_in(dir).ok()?;
-        let file = read_weights(&path, None).ok()?;
-        serde_json::from_str(file.metadata.get("mlod.config")?).ok()
+        read_weights(&path, None).ok()?.model_config().ok()
     };
     config().is_none_or(|c| c.grid.intensity)
 }

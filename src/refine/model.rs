@@ -75,7 +75,7 @@ pub struct Decoding {
     pub score: ScoreRule,
     /// 3D-IoU NMS after refinement (`None`: none).
     pub nms_iou: Option<f64>,
-    /// The 3D-IoU NMS after refinement of the union cases (`mlod-u`, `mlod-u-tr`), which always
+    /// The 3D-IoU NMS after refinement of the union cases (`mlod-u`, `mlod-ir-drop`), which always
     /// need one: both stage-1 views may propose the same car.
     pub union_nms_iou: f64,
     /// Box voting after the NMS (3D IoU): each kept box becomes the score-weighted mean of the

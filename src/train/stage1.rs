@@ -462,11 +462,7 @@ fn load_checkpoint(
         path: path.clone(),
         what,
     };
-    let meta_cfg = w
-        .metadata
-        .get("mlod.config")
-        .ok_or_else(|| bad("no mlod.config".into()))?;
-    let ck_cfg: ModelConfig = serde_json::from_str(meta_cfg).map_err(|e| bad(e.to_string()))?;
+    let ck_cfg = w.model_config()?;
     if ck_cfg != model.config {
         return Err(bad(format!(
             "checkpoint is for another model ({:?})",

@@ -369,64 +369,6 @@ fn detectors_files_define_cases_for_every_command() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The protocol's cost per frame on mlod's side with a detector that answers at once: 150k points
-/// written, the request sent, the answer read. Timing, so not run by default:
-/// `cargo test --release --test cli external::protocol_overhead -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn protocol_overhead() {
-    use mlod::dataset::LidarChannel;
-    use mlod::pipeline::{FusedCloud, FusedLidar};
-    const N: usize = 150_000;
-    let lidar = |channel, range| FusedLidar {
-        channel,
-        range,
-        nominal: mlod::geometry::Pose::identity(),
-        noise: mlod::uncertainty::ExtrinsicNoise::ZERO,
-        applied: mlod::geometry::Pose::identity(),
-        calibrated: false,
-    };
-    let f = |k: usize| {
-        (0..N)
-            .map(|i| ((i * k) % 1000) as f32 * 0.01)
-            .collect::<Vec<f32>>()
-    };
-    let cloud = FusedCloud {
-        x: f(7),
-        y: f(11),
-        z: f(13),
-        intensity: f(17),
-        source: (0..N).map(|i| (i % 3) as u8).collect(),
-        trace: f(19),
-        lidars: vec![
-            lidar(LidarChannel::Top, 0..N / 3),
-            lidar(LidarChannel::FrontLeft, N / 3..2 * N / 3),
-            lidar(LidarChannel::FrontRight, 2 * N / 3..N),
-        ],
-    };
-    let spec =
-        mlod::external::ExternalSpec::new("instant", vec!["python3".into(), FAKE.into(), "instant".into()])
-            .unwrap();
-    let det = mlod::external::ExternalDetector::new(spec);
-    for _ in 0..3 {
-        det.detect_cloud("warm", &cloud).unwrap();
-    }
-    let mut ms: Vec<f64> = (0..50)
-        .map(|i| {
-            let t0 = Instant::now();
-            det.detect_cloud(&format!("s{i}"), &cloud).unwrap();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    ms.sort_by(f64::total_cmp);
-    let (median, p90) = (ms[ms.len() / 2], ms[ms.len() * 9 / 10]);
-    println!(
-        "mlod-detector/1 overhead, {N} points: median {median:.2} ms, p90 {p90:.2} ms, max {:.2} ms",
-        ms[ms.len() - 1]
-    );
-    assert!(median < 15.0, "median {median:.2} ms");
-}
-
 #[test]
 fn a_failed_sweep_unit_is_reported_and_retried_on_resume() {
     let dir = tmp("resume");

@@ -529,23 +529,3 @@ fn invalid_configurations_are_refused_before_writing() {
     }
     assert!(files(&dir).is_empty());
 }
-
-/// Timing of a 10-sample dataset (the size of sample_data/):
-/// `cargo test --release --test data synth -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn time_ten_samples() {
-    let cfg = SynthConfig::default();
-    let dir = fresh_dir("ten");
-    let start = std::time::Instant::now();
-    let s = generate(&cfg, &dir, |_, _| {}).unwrap();
-    let secs = start.elapsed().as_secs_f64();
-    eprintln!(
-        "generate: {} samples, {} points, {} annotations, {:.1} MB in {secs:.2} s ({:.0} ms/sample)",
-        s.samples,
-        s.points,
-        s.annotations,
-        s.bytes as f64 / 1e6,
-        1e3 * secs / s.samples as f64
-    );
-}

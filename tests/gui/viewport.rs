@@ -201,55 +201,6 @@ fn kittest_eframe_app_draws_the_points() {
     assert_ne!(img.as_raw(), zoomed.as_raw());
 }
 
-/// 150k points at 1280×800, averaged over 20 frames (render + read-back).
-/// `cargo test --release --test gui -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn measure_150k_points_at_1280x800() {
-    let gpu = gpu();
-    eprintln!(
-        "adapter: {} ({:?})",
-        gpu.adapter_info.name, gpu.adapter_info.backend
-    );
-    let scene = ring_scene(150_000);
-    for msaa in [1, 4] {
-        let mut renderer = OffscreenRenderer::with_msaa(&gpu.device, &gpu.queue, msaa);
-        let empty = SceneHandle::new();
-        renderer
-            .render(&empty, &Viewport::default(), (1280, 800))
-            .unwrap();
-        let start = std::time::Instant::now();
-        for _ in 0..10 {
-            renderer
-                .render(&empty, &Viewport::default(), (1280, 800))
-                .unwrap();
-        }
-        let ms = start.elapsed().as_secs_f64() * 100.0;
-        eprintln!("msaa {msaa}: empty scene {ms:.1} ms/frame (clear + read-back)");
-    }
-    for msaa in [1, 4] {
-        let mut renderer = OffscreenRenderer::with_msaa(&gpu.device, &gpu.queue, msaa);
-        let v = Viewport::default();
-        renderer.render(&scene, &v, (1280, 800)).unwrap();
-        let frames = 20;
-        let start = std::time::Instant::now();
-        for _ in 0..frames {
-            renderer.render(&scene, &v, (1280, 800)).unwrap();
-        }
-        let ms = start.elapsed().as_secs_f64() * 1000.0 / f64::from(frames);
-        // Re-uploading colours every frame (an α-slider drag).
-        let mut recoloured = scene.clone();
-        let start = std::time::Instant::now();
-        for i in 0..frames {
-            let c = [(i * 10) as u8, 100, 200, 255];
-            recoloured.set_colors(vec![c; 150_000]).unwrap();
-            renderer.render(&recoloured, &v, (1280, 800)).unwrap();
-        }
-        let ms_upload = start.elapsed().as_secs_f64() * 1000.0 / f64::from(frames);
-        eprintln!("msaa {msaa}: {ms:.1} ms/frame, {ms_upload:.1} ms/frame with a colour upload");
-    }
-}
-
 /// Writes a few views of a street-like scene to the temp dir, to look at:
 /// `cargo test --test gui -- --ignored dump --nocapture`.
 #[test]
