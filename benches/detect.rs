@@ -10,27 +10,13 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use mlod::dataset::Dataset;
 use mlod::detect::model::load_detector;
 use mlod::detect::weights::default_models_dir;
-use mlod::detect::{Case, Detector, ModelConfig, ResultFusion, Stage1Model};
+use mlod::detect::{Case, Detector, ModelConfig, Stage1Model};
 use mlod::pipeline::{fuse, FuseParams};
 use mlod::train::stage1::{compute_loss, prepare_sample, AdamW};
 use std::hint::black_box;
 
 fn detector(case: Case) -> Box<dyn Detector> {
-    if let Ok(d) = load_detector(&default_models_dir(), case) {
-        return d;
-    }
-    let fresh = |c: Case| Stage1Model::new_trainable(ModelConfig::new(c), 1).expect("model");
-    match case {
-        Case::Result => Box::new(ResultFusion {
-            generators: [Case::Top, Case::Left, Case::Right]
-                .map(|c| (fresh(c), 1.0))
-                .into(),
-            nms_iou: 0.1,
-            max_detections: 100,
-            vote_iou: None,
-        }),
-        c => Box::new(fresh(c)),
-    }
+    load_detector(&default_models_dir(), case).expect("the shipped models")
 }
 
 fn bench(c: &mut Criterion) {
@@ -51,9 +37,7 @@ fn bench(c: &mut Criterion) {
     // inference network (what detection runs).
     let mut g = c.benchmark_group("network");
     g.sample_size(10);
-    let top = Stage1Model::load_shipped(&default_models_dir(), Case::Top)
-        .or_else(|_| Stage1Model::new_trainable(ModelConfig::new(Case::Top), 1))
-        .expect("model");
+    let top = Stage1Model::load_shipped(&default_models_dir(), Case::Top).expect("the shipped LiDAR-Top");
     let cloud = fuse(&frame, &params).expect("fuse");
     let bevs = top.voxelize(&cloud);
     let folded = top.fast_net().expect("folded network");
@@ -117,11 +101,10 @@ fn bench_refine(c: &mut Criterion) {
     // (Result and Input Fusion on the certain points, four networks, their proposals refined
     // together): whole runs, fuse included.
     for case in [Case::MlodI, Case::MlodU, Case::MlodIrDrop] {
-        if let Ok(m) = mlod::cases::load_mlod(&default_models_dir(), case, Default::default()) {
-            g.bench_function(case.as_str(), |b| {
-                b.iter(|| black_box(m.run(&frame, &params).expect("run")))
-            });
-        }
+        let m = mlod::cases::load_mlod(&default_models_dir(), case, Default::default()).expect("the shipped models");
+        g.bench_function(case.as_str(), |b| {
+            b.iter(|| black_box(m.run(&frame, &params).expect("run")))
+        });
     }
     g.finish();
 }

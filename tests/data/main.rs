@@ -25,10 +25,11 @@ fn real_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/lyft-real")
 }
 
-fn devkit_expected() -> Option<serde_json::Value> {
+/// The devkit's boxes of the real fixture (committed: a missing or corrupt file fails the test).
+fn devkit_expected() -> serde_json::Value {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/devkit_expected/real_boxes.json");
-    let text = std::fs::read_to_string(path).ok()?;
-    serde_json::from_str(&text).ok()
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// A folder under the system temp dir, removed on drop.
