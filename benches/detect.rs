@@ -101,7 +101,8 @@ fn bench_refine(c: &mut Criterion) {
     // (Result and Input Fusion on the certain points, four networks, their proposals refined
     // together): whole runs, fuse included.
     for case in [Case::MlodI, Case::MlodU, Case::MlodIrDrop] {
-        let m = mlod::cases::load_mlod(&default_models_dir(), case, Default::default()).expect("the shipped models");
+        let m = mlod::cases::load_mlod(&default_models_dir(), case, Default::default())
+            .expect("the shipped models");
         g.bench_function(case.as_str(), |b| {
             b.iter(|| black_box(m.run(&frame, &params).expect("run")))
         });

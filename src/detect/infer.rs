@@ -24,6 +24,7 @@ use super::config::ModelConfig;
 use super::net::{branch_prefix, HeadOutput};
 use super::voxel::Bev;
 use super::DetectError;
+use crate::nn::gemm::gemm_rm;
 
 /// BatchNorm's ε in candle-nn's default configuration, which [`super::net`] uses.
 const BN_EPS: f32 = 1e-5;
@@ -90,70 +91,11 @@ impl RawHeads {
     }
 }
 
-/// `c[i·ldc + j] (+)= Σ_p a[i·lda + p] · b[p·ldb + j]` for `i < m`, `j < n`, `p < k`, on one
-/// thread. Returns false (and computes nothing) when a slice is too short for the shape.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn gemm_rm(
-    m: usize,
-    n: usize,
-    k: usize,
-    a: &[f32],
-    lda: usize,
-    b: &[f32],
-    ldb: usize,
-    c: &mut [f32],
-    ldc: usize,
-    accumulate: bool,
-) -> bool {
-    if m == 0 || n == 0 {
-        return true;
-    }
-    let fits = |len: usize, rows: usize, ld: usize, cols: usize| rows == 0 || len >= (rows - 1) * ld + cols;
-    if !fits(c.len(), m, ldc, n) || !(k == 0 || fits(a.len(), m, lda, k) && fits(b.len(), k, ldb, n)) {
-        return false;
-    }
-    if k == 0 {
-        if !accumulate {
-            for i in 0..m {
-                c[i * ldc..i * ldc + n].fill(0.0);
-            }
-        }
-        return true;
-    }
-    // SAFETY: the checks above keep every element the strides reach inside its slice:
-    // a: (m−1)·lda + k, b: (k−1)·ldb + n, c: (m−1)·ldc + n; c is the only one written and does
-    // not alias a or b (distinct borrows).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            ldc as isize,
-            accumulate,
-            a.as_ptr(),
-            1,
-            lda as isize,
-            b.as_ptr(),
-            1,
-            ldb as isize,
-            1.0f32,
-            1.0f32,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
-    true
-}
-
 fn internal(what: String) -> DetectError {
     DetectError::BadParameter(format!("fast inference: {what}"))
 }
 
-/// Whether every band's gemm had operands of its shape ([`gemm_rm`] returned true).
+/// Whether every band's gemm had operands of its shape ([`crate::nn::gemm::gemm_rm`] returned true).
 fn gemms_fit(ok: bool) -> Result<(), DetectError> {
     if ok {
         Ok(())

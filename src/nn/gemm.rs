@@ -1,5 +1,7 @@
-//! The one gemm entry point of the trainers: [`Mat`] (a strided row- or column-major view),
-//! [`gemm_into`] (`dst (+)= a · b` on the `gemm` crate candle itself uses, over rayon's threads),
+//! Every call of the `gemm` crate (the one candle itself uses) goes through this module:
+//! [`gemm_rm`] (row-major, one thread: the inference networks, each band on its own task),
+//! [`Mat`] (a strided row- or column-major view) and [`gemm_into`] (`dst (+)= a · b` over rayon's
+//! threads: the trainers; `kernel.rs` packs its own AVX-512 tiles and falls back to it),
 //! [`Geom`] (one convolution's shape, im2col and col2im) and the neck's deconvolution permute.
 //!
 //! Determinism: gemm splits its output between threads, never a sum, and every other loop
@@ -110,6 +112,66 @@ pub(crate) fn gemm_into(
         );
     }
     Ok(())
+}
+
+/// `c[i·ldc + j] (+)= Σ_p a[i·lda + p] · b[p·ldb + j]` for `i < m`, `j < n`, `p < k`, on one
+/// thread, row-major (the inference networks' bands, each already on its own rayon task).
+/// Returns false (and computes nothing) when a slice is too short for the shape.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn gemm_rm(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: &[f32],
+    lda: usize,
+    b: &[f32],
+    ldb: usize,
+    c: &mut [f32],
+    ldc: usize,
+    accumulate: bool,
+) -> bool {
+    if m == 0 || n == 0 {
+        return true;
+    }
+    let fits = |len: usize, rows: usize, ld: usize, cols: usize| rows == 0 || len >= (rows - 1) * ld + cols;
+    if !fits(c.len(), m, ldc, n) || !(k == 0 || fits(a.len(), m, lda, k) && fits(b.len(), k, ldb, n)) {
+        return false;
+    }
+    if k == 0 {
+        if !accumulate {
+            for i in 0..m {
+                c[i * ldc..i * ldc + n].fill(0.0);
+            }
+        }
+        return true;
+    }
+    // SAFETY: the checks above keep every element the strides reach inside its slice:
+    // a: (m−1)·lda + k, b: (k−1)·ldb + n, c: (m−1)·ldc + n; c is the only one written and does
+    // not alias a or b (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            ldc as isize,
+            accumulate,
+            a.as_ptr(),
+            1,
+            lda as isize,
+            b.as_ptr(),
+            1,
+            ldb as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+    true
 }
 
 /// The shape of one convolution.

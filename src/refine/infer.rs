@@ -8,7 +8,7 @@ use candle_core::Tensor;
 use super::coding::RESIDUALS;
 use super::net::{RefinerConfig, PROPOSAL_FEATURES};
 use super::RefineError;
-use crate::detect::infer::gemm_rm;
+use crate::nn::gemm::gemm_rm;
 
 /// BatchNorm's ε in candle-nn's default configuration.
 const BN_EPS: f32 = 1e-5;
