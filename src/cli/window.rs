@@ -17,7 +17,7 @@ pub struct GuiArgs {
     #[arg(long)]
     session: Option<PathBuf>,
     /// Models folder with manifest.json (default: $MLOD_MODELS, else the shipped assets/models),
-    /// e.g. assets/models/v4 for the chain shipped before it.
+    /// e.g. your own `mlod train` output.
     #[arg(long)]
     models: Option<PathBuf>,
     /// Measure: repaint continuously for N frames, print frame times, exit.

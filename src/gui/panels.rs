@@ -165,7 +165,7 @@ pub fn menu_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     .button("Open models folder…")
                     .on_hover_text(
                         "Run the detectors from another folder of weights with its manifest.json \
-                         (an older set such as assets/models/v4, or your own)",
+                         (your own `mlod train` output, or an earlier set from git history)",
                     )
                     .clicked()
                 {

@@ -1,5 +1,5 @@
-//! File > Open models folder…: the detectors run from another folder of weights (an older set
-//! such as `assets/models/v4`, or a user's own training run). The
+//! File > Open models folder…: the detectors run from another folder of weights (a user's own
+//! training run, or an earlier set from git history). The
 //! folder's manifest.json is read first; one that does not load leaves the window on the folder
 //! it had, with the reason in a toast.
 
