@@ -310,7 +310,10 @@ fn read_merged_rows(dir: &Path) -> Result<Vec<UnitResult>, SweepError> {
     };
     serde_json::from_slice::<Merged>(&bytes)
         .map(|m| m.rows)
-        .map_err(|e| SweepError::BadParameter(format!("{}: {e}", path.display())))
+        .map_err(|e| SweepError::File {
+            path,
+            what: format!("not a sweep's results: {e}"),
+        })
 }
 
 /// The stage-1 networks a case runs (Input Fusion for `input-drop`, Result Fusion for
@@ -343,10 +346,7 @@ impl Detectors {
         for c in cases.iter().filter(|c| c.is_mlod()) {
             let key = (c.refiner_sees_trace(), c.is_union());
             if let std::collections::hash_map::Entry::Vacant(e) = refiners.entry(key) {
-                let mut r =
-                    Refiner::load_shipped_for(models, *c).map_err(|e| DetectError::Refiner(e.to_string()))?;
-                r.decoding = r.decoding.for_case(*c);
-                e.insert(Arc::new(r));
+                e.insert(Arc::new(crate::cases::load_refiner(models, *c)?));
             }
         }
         Ok(Self { stage1, refiners })
@@ -377,8 +377,10 @@ fn detect_sample(
     let mut proposals: HashMap<(Case, bool), Vec<Detection>> = HashMap::new();
     let mut out = HashMap::new();
     // The certain points' cloud, made once for every "drop" stage 1 that a case needs.
-    let drops: Vec<Case> = [Case::InputDrop, Case::ResultDrop]
-        .into_iter()
+    let drops: Vec<Case> = crate::detect::case::TABLE
+        .iter()
+        .map(|r| r.case)
+        .filter(|d| d.dropped().is_some())
         .filter(|d| cases.iter().any(|c| c.without_oc().proposal_cases().contains(d)))
         .collect();
     if !drops.is_empty() {

@@ -114,8 +114,14 @@ pub fn load_mlod_with(dir: &Path, case: Case, voting: Voting, drop_trace: f32) -
     } else {
         load_stage1(dir, case.stage1(), voting, drop_trace)?
     };
+    Ok(Mlod::new(case, stage1, Arc::new(load_refiner(dir, case)?)))
+}
+
+/// The folder's refiner for an MLOD case (with or without tr(Ξ)), decoding as that case does
+/// (NMS after refinement for a union case).
+pub fn load_refiner(dir: &Path, case: Case) -> Result<Refiner, DetectError> {
     let mut refiner =
         Refiner::load_shipped_for(dir, case).map_err(|e| DetectError::Refiner(e.to_string()))?;
     refiner.decoding = refiner.decoding.for_case(case);
-    Ok(Mlod::new(case, stage1, Arc::new(refiner)))
+    Ok(refiner)
 }

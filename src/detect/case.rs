@@ -344,15 +344,20 @@ impl Case {
     /// The stage-1 case whose proposals an MLOD case refines (itself for a stage-1 case); the
     /// (OC) variant for an MLOD (OC) case.
     pub fn stage1(self) -> Case {
+        if let Case::MlodExt(_) = self {
+            return ext_case(self.external_name().unwrap_or_default());
+        }
         match self.build() {
-            _ if matches!(self, Case::MlodExt(_)) => ext_case(self.external_name().unwrap_or_default()),
             // A union case's "stage 1" is its fusion part (LiDAR-Top rides along).
             Build::Refine { proposals, .. } => proposals
                 .iter()
                 .copied()
                 .find(|c| *c != Case::Top)
                 .unwrap_or(self),
-            Build::Oc(inner) if inner.is_mlod() => inner.stage1().with_oc().unwrap_or(inner.stage1()),
+            Build::Oc(inner) if inner.is_mlod() => {
+                let s = inner.stage1();
+                s.with_oc().unwrap_or(s)
+            }
             _ => self,
         }
     }

@@ -4,6 +4,8 @@
 use std::process::Command;
 
 mod cluster;
+#[path = "../common/mod.rs"]
+mod common;
 mod external;
 mod transfer;
 
@@ -56,14 +58,7 @@ fn tuning_fixture(tag: &str) -> (std::path::PathBuf, String, String) {
         "{}",
         String::from_utf8_lossy(&synth.stderr)
     );
-    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models");
-    for e in std::fs::read_dir(&source).expect("models folder") {
-        let p = e.expect("entry").path();
-        let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-        if name == "manifest.json" || name.ends_with(".safetensors") {
-            std::fs::copy(&p, models.join(name)).expect("copy the models");
-        }
-    }
+    common::copy_shipped_models(&models, &[]);
     (dir, d, m)
 }
 

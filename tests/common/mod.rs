@@ -33,7 +33,14 @@ pub fn scratch(tag: &str) -> PathBuf {
 /// from the shipped ones in a known way.
 pub fn shipped_without(tag: &str, keys: &[&str]) -> PathBuf {
     let dir = scratch(tag).join("models");
-    std::fs::create_dir_all(&dir).unwrap();
+    copy_shipped_models(&dir, keys);
+    dir
+}
+
+/// Copies the shipped models folder (every weights file and the manifest, without its top-level
+/// `keys`) into `dir`.
+pub fn copy_shipped_models(dir: &Path, keys: &[&str]) {
+    std::fs::create_dir_all(dir).unwrap();
     for e in std::fs::read_dir(assets_models()).unwrap() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "safetensors") {
@@ -41,6 +48,10 @@ pub fn shipped_without(tag: &str, keys: &[&str]) -> PathBuf {
         }
     }
     let text = std::fs::read_to_string(assets_models().join("manifest.json")).unwrap();
+    if keys.is_empty() {
+        std::fs::write(dir.join("manifest.json"), text).unwrap();
+        return;
+    }
     let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
     for k in keys {
         assert!(
@@ -53,5 +64,4 @@ pub fn shipped_without(tag: &str, keys: &[&str]) -> PathBuf {
         serde_json::to_string_pretty(&m).unwrap(),
     )
     .unwrap();
-    dir
 }
