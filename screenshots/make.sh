@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates screenshots/*.png from the real window under Xvfb (software rendering), one per
 # committed session file. Sessions are written by:
-#   cargo test --test gui_app -- --ignored write_screenshot_sessions
+#   cargo test --test gui -- --ignored write_screenshot_sessions
 # Needs: xvfb, xauth, imagemagick (import), mesa-vulkan-drivers; xdotool (optional) moves the
 # pointer out of the way.
 set -euo pipefail
