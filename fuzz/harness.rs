@@ -320,3 +320,63 @@ fn sample_cloud() -> &'static mlod::pipeline::FusedCloud {
         mlod::pipeline::fuse(sample_frame(), &params).expect("the first sample fuses")
     })
 }
+
+/// An Argoverse 2 log: the first byte picks which of its four files the rest replaces (sweep,
+/// calibration, poses, annotations; the others are the real fixture's), then the log is opened,
+/// its sweep loaded and fused. Every decoded column is also read directly.
+pub fn av2(data: &[u8]) {
+    use mlod::dataset::av2::feather::Feather;
+    let (which, bytes) = data.split_first().map_or((0, &[][..]), |(w, b)| (*w, b));
+    if let Ok(f) = Feather::parse(bytes.to_vec(), Path::new("x.feather")) {
+        for c in ["x", "y", "z", "qw", "tx_m", "length_m"] {
+            let _ = (f.f32s(c), f.f64s(c));
+        }
+        let _ = (
+            f.u8s("laser_number"),
+            f.i64s("timestamp_ns"),
+            f.strings("category"),
+        );
+        let _ = f.finite_rows(["qw", "qx", "qy", "qz"]);
+    }
+    const FILES: [&str; 4] = [
+        "sensors/lidar/315966265259836000.feather",
+        "calibration/egovehicle_SE3_sensor.feather",
+        "city_SE3_egovehicle.feather",
+        "annotations.feather",
+    ];
+    let fixture = fixture_dir().join("av2/val/7fab2350-7eaf-3b7e-a39d-6937a4c1bede");
+    let s = Scratch::new("av2");
+    for (k, rel) in FILES.iter().enumerate() {
+        let body = if k == usize::from(which % 4) {
+            bytes.to_vec()
+        } else {
+            std::fs::read(fixture.join(rel)).expect("the AV2 fixture (tests/fixtures/av2)")
+        };
+        s.write(&format!("log/{rel}"), &body);
+    }
+    let Ok(ds) = Dataset::open(s.path()) else { return };
+    let _ = ds.notes();
+    let Some(token) = ds.first_sample_token().map(str::to_owned) else {
+        return;
+    };
+    let Ok(frame) = ds.frame(&token) else { return };
+    for b in &frame.boxes {
+        assert!(
+            b.box3d.center.iter().all(|v| v.is_finite()),
+            "finite cuboids give finite boxes"
+        );
+    }
+    if let Ok(cloud) = mlod::pipeline::fuse(&frame, &mlod::pipeline::FuseParams::default()) {
+        assert_eq!(cloud.x.len(), frame.num_points());
+        assert!(cloud.x.iter().all(|v| v.is_finite()), "loaded points are finite");
+    }
+}
+
+/// tests/fixtures, from the repository (tests) or from fuzz/ (cargo fuzz).
+fn fixture_dir() -> PathBuf {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    [here.join("tests/fixtures"), here.join("../tests/fixtures")]
+        .into_iter()
+        .find(|p| p.is_dir())
+        .unwrap_or_else(|| here.join("tests/fixtures"))
+}

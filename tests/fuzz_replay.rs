@@ -46,5 +46,6 @@ replay_test!(
     weights,
     predictions,
     sweep_folder,
-    kitti
+    kitti,
+    av2
 );

@@ -1,6 +1,6 @@
 //! One set of category names for every format: Lyft Level 5's (`car`, `pedestrian`, …), which the
 //! detectors, the evaluation and the simulator use. nuScenes and KITTI names are mapped onto them
-//! here, in one table (docs/data.md prints it); a name the table does not know keeps its own name,
+//! here (and Argoverse 2's), in one table (docs/data.md prints it); a name the table does not know keeps its own name,
 //! so its boxes are shown and listed but never scored against ours, and the dataset lists it as
 //! unmapped.
 
@@ -52,6 +52,27 @@ pub const MAPPING: [(&str, &str); 24] = [
 /// from [`MAPPING`] only to keep that table's length readable.
 const EXTRA: [(&str, &str); 1] = [("Tram", "other_vehicle")];
 
+/// Argoverse 2's classes (its sensor dataset's 30). Riders (BICYCLIST, MOTORCYCLIST,
+/// WHEELED_RIDER) are people on a vehicle that is labelled on its own; they, the static objects
+/// (BOLLARD, SIGN, CONSTRUCTION_CONE, …), STROLLER, WHEELCHAIR and WHEELED_DEVICE have no
+/// counterpart among ours and stay unmapped.
+pub const AV2: [(&str, &str); 14] = [
+    ("REGULAR_VEHICLE", "car"),
+    ("LARGE_VEHICLE", "other_vehicle"),
+    ("BUS", "bus"),
+    ("SCHOOL_BUS", "bus"),
+    ("ARTICULATED_BUS", "bus"),
+    ("BOX_TRUCK", "truck"),
+    ("TRUCK", "truck"),
+    ("TRUCK_CAB", "truck"),
+    ("VEHICULAR_TRAILER", "other_vehicle"),
+    ("RAILED_VEHICLE", "other_vehicle"),
+    ("MOTORCYCLE", "motorcycle"),
+    ("BICYCLE", "bicycle"),
+    ("PEDESTRIAN", "pedestrian"),
+    ("DOG", "animal"),
+];
+
 /// Our name for a source category; `None` when the name is not ours and not in the table
 /// (nuScenes `movable_object.*`, `static_object.*`, KITTI `Misc`, …).
 pub fn canonical(name: &str) -> Option<&'static str> {
@@ -61,6 +82,7 @@ pub fn canonical(name: &str) -> Option<&'static str> {
     MAPPING
         .iter()
         .chain(EXTRA.iter())
+        .chain(AV2.iter())
         .find(|(from, _)| *from == name)
         .map(|(_, to)| *to)
 }
@@ -72,7 +94,7 @@ pub fn display_name(name: &str) -> String {
 
 /// Every row of the mapping, for the docs and `mlod inspect`.
 pub fn table() -> impl Iterator<Item = (&'static str, &'static str)> {
-    MAPPING.iter().chain(EXTRA.iter()).copied()
+    MAPPING.iter().chain(EXTRA.iter()).chain(AV2.iter()).copied()
 }
 
 #[cfg(test)]
@@ -90,6 +112,8 @@ mod tests {
         assert_eq!(canonical("Tram"), Some("other_vehicle"));
         assert_eq!(canonical("movable_object.barrier"), None);
         assert_eq!(canonical("Misc"), None);
+        assert_eq!(canonical("REGULAR_VEHICLE"), Some("car"));
+        assert_eq!(canonical("BOLLARD"), None);
         assert_eq!(display_name("Misc"), "Misc");
         // Every target is one of ours.
         for (_, to) in table() {

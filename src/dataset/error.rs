@@ -10,7 +10,8 @@ pub enum DatasetError {
     /// Neither the given folder nor any folder directly inside it holds `sample.json`.
     #[error(
         "no dataset at {path}: expected a Lyft or nuScenes version folder (a folder holding sample.json) \
-         at or directly inside it, or a KITTI object folder (velodyne/, calib/, label_2/, or training/ holding them)"
+         at or directly inside it, a KITTI object folder (velodyne/, calib/, label_2/, or training/ holding them), \
+         or Argoverse 2 sensor data (a log folder holding sensors/lidar/, a split folder of logs, or a root holding sensor/<split>/)"
     )]
     VersionFolderNotFound { path: PathBuf },
 
@@ -115,11 +116,22 @@ pub enum DatasetError {
         layout: &'static str,
     },
 
-    /// A KITTI label or calib file that cannot be read (line 0: the file as a whole).
-    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
-    Kitti {
+    /// A file of a KITTI or Argoverse 2 dataset that cannot be read or is missing (a label,
+    /// calib or calibration file; line 0: the file as a whole; an empty path: the message says
+    /// it all).
+    #[error("{}", located(path, *line, message))]
+    BadFile {
         path: PathBuf,
         line: usize,
+        message: String,
+    },
+
+    /// A feather (Arrow IPC) file that cannot be decoded, or a column that is missing, of another
+    /// type, or holds a bad value (`column: None`: the file as a whole).
+    #[error("{}{}: {message}", path.display(), column.as_ref().map_or(String::new(), |c| format!(", column {c}")))]
+    BadColumn {
+        path: PathBuf,
+        column: Option<String>,
         message: String,
     },
 
@@ -140,4 +152,13 @@ pub enum DatasetError {
         field: &'static str,
         value: [f64; 3],
     },
+}
+
+/// `path:line: message`, `path: message` (line 0) or `message` (no path).
+fn located(path: &std::path::Path, line: usize, message: &str) -> String {
+    match (path.as_os_str().is_empty(), line) {
+        (true, _) => message.to_owned(),
+        (false, 0) => format!("{}: {message}", path.display()),
+        (false, l) => format!("{}:{l}: {message}", path.display()),
+    }
 }

@@ -58,6 +58,15 @@ impl LidarInfo {
     /// Reads this sweep's `.bin`. A missing file is [`DatasetError::MissingPointCloud`] naming the
     /// path and the sample_data token.
     pub fn load_points(&self, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
+        if self.layout == PointLayout::Av2Sweep {
+            if !self.path.is_file() {
+                return Err(DatasetError::MissingPointCloud {
+                    path: self.path.clone(),
+                    token: self.sample_data_token.clone(),
+                });
+            }
+            return super::av2::sweep::read_lidar(&self.path, self.channel, &self.sensor_to_ego);
+        }
         let bytes = std::fs::read(&self.path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
                 DatasetError::MissingPointCloud {

@@ -17,6 +17,7 @@ use std::path::{Component, Path, PathBuf};
 
 use serde::Serialize;
 
+use super::av2;
 use super::categories;
 use super::error::DatasetError;
 use super::kitti::{self, EvalRegion, FrameIssue};
@@ -96,6 +97,9 @@ pub enum DatasetFormat {
     NuScenes,
     /// The KITTI 3D object benchmark (`training/velodyne`, `label_2`, `calib`).
     Kitti,
+    /// Argoverse 2's sensor dataset (`sensor/<split>/<log>/sensors/lidar/*.feather`): two roof
+    /// LiDARs, `up_lidar` in LIDAR_TOP's slot and `down_lidar` in LIDAR_FRONT_LEFT's.
+    Av2,
 }
 
 impl DatasetFormat {
@@ -104,6 +108,30 @@ impl DatasetFormat {
             Self::Lyft => "Lyft Level 5",
             Self::NuScenes => "nuScenes",
             Self::Kitti => "KITTI object",
+            Self::Av2 => "Argoverse 2",
+        }
+    }
+
+    /// The name this format gives the LiDAR in a slot (`up_lidar` for AV2's LIDAR_TOP slot);
+    /// the channel name for the formats whose channels are the slots.
+    pub fn lidar_name(self, channel: LidarChannel) -> &'static str {
+        match (self, channel) {
+            (Self::Av2, LidarChannel::Top) => "up_lidar",
+            (Self::Av2, LidarChannel::FrontLeft) => "down_lidar",
+            _ => channel.as_str(),
+        }
+    }
+
+    /// The rig in one line, for banners and `mlod inspect`; `None` for the formats whose
+    /// LiDARs are the channels' own.
+    pub fn rig(self) -> Option<&'static str> {
+        match self {
+            Self::Av2 => Some(
+                "Argoverse 2 rig: two stacked Velodyne VLP-32C on the roof; up_lidar is the primary \
+                 (LiDAR-Top's role, its frame the base frame), down_lidar the one auxiliary (LiDAR-Left's role; \
+                 no LiDAR-Right)",
+            ),
+            _ => None,
         }
     }
 }
@@ -141,13 +169,23 @@ impl Dataset {
     /// Opens a dataset in whatever format the folder holds:
     /// - Lyft or nuScenes: the root (the folder holding `v1.01-train/` or `v1.0-mini/`, `lidar/` or
     ///   `samples/`, `maps/`) or the version folder itself;
-    /// - KITTI object: the split folder (`training/`) or the folder above it.
+    /// - KITTI object: the split folder (`training/`) or the folder above it;
+    /// - Argoverse 2 sensor data: a log folder, a split folder of logs, or the root holding
+    ///   `sensor/<split>/`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, DatasetError> {
         let path = path.as_ref();
         let version_dir = match find_version_dir(path) {
             Ok(v) => v,
             Err(DatasetError::VersionFolderNotFound { .. }) if kitti::find_layout(path).is_some() => {
                 return Self::open_kitti(path);
+            }
+            Err(DatasetError::VersionFolderNotFound { .. }) => {
+                if let Some(layout) = av2::find_layout(path) {
+                    return Self::open_av2(&layout);
+                }
+                return Err(DatasetError::VersionFolderNotFound {
+                    path: path.to_path_buf(),
+                });
             }
             Err(e) => return Err(e),
         };
@@ -185,6 +223,17 @@ impl Dataset {
         ds.notes = index.notes;
         Ok(ds)
     }
+
+    fn open_av2(layout: &av2::Av2Layout) -> Result<Self, DatasetError> {
+        let index = av2::open(layout)?;
+        let mut ds = Self::from_tables(layout.root.clone(), layout.root.clone(), index.tables);
+        ds.format = DatasetFormat::Av2;
+        ds.layout = PointLayout::Av2Sweep;
+        ds.issues = index.issues;
+        ds.notes = index.notes;
+        Ok(ds)
+    }
+
     /// Builds the indexes over tables already in memory. `root` is where the tables' filenames
     /// are resolved.
     pub fn from_tables(root: PathBuf, version_dir: PathBuf, tables: Tables) -> Self {

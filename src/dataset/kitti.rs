@@ -150,7 +150,7 @@ impl KittiCalib {
 }
 
 fn calib_error(path: &Path, line: usize, message: String) -> DatasetError {
-    DatasetError::Kitti {
+    DatasetError::BadFile {
         path: path.to_path_buf(),
         line,
         message,
@@ -220,7 +220,7 @@ pub fn parse_labels(text: &str, path: &Path) -> Result<Vec<KittiLabel>, DatasetE
         if fields.is_empty() {
             continue;
         }
-        let bad = |message: String| DatasetError::Kitti {
+        let bad = |message: String| DatasetError::BadFile {
             path: path.to_path_buf(),
             line: i + 1,
             message,
@@ -287,7 +287,7 @@ pub struct FrameIssue {
 
 impl FrameIssue {
     pub fn to_error(&self) -> DatasetError {
-        DatasetError::Kitti {
+        DatasetError::BadFile {
             path: self.path.clone(),
             line: self.line,
             message: self.message.clone(),
@@ -298,7 +298,7 @@ impl FrameIssue {
 impl From<DatasetError> for FrameIssue {
     fn from(e: DatasetError) -> Self {
         match e {
-            DatasetError::Kitti { path, line, message } => Self { path, line, message },
+            DatasetError::BadFile { path, line, message } => Self { path, line, message },
             other => Self {
                 path: PathBuf::new(),
                 line: 0,
@@ -484,7 +484,7 @@ pub fn open(layout: &KittiLayout) -> Result<KittiIndex, DatasetError> {
         let calib_path = split.join("calib").join(format!("{id}.txt"));
         let calib = match read_text(&calib_path)? {
             Some(text) => KittiCalib::parse(&text, &calib_path),
-            None => Err(DatasetError::Kitti {
+            None => Err(DatasetError::BadFile {
                 path: calib_path.clone(),
                 line: 0,
                 message: format!(

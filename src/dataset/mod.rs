@@ -1,6 +1,7 @@
-//! Lyft Level 5 multi-LiDAR data in its on-disk (nuScenes-style) format: the 13 JSON tables,
-//! the dataset index, `.bin` point clouds, and the writers the simulator uses to emit the same
-//! format.
+//! Multi-LiDAR datasets behind one [`Frame`]: Lyft Level 5 in its on-disk (nuScenes-style) format
+//! (the 13 JSON tables, the dataset index, `.bin` point clouds, and the writers the simulator uses
+//! to emit the same format); KITTI ([`kitti`]) and Argoverse 2 ([`av2`]) are read into the same
+//! in-memory tables.
 //!
 //! ```text
 //! root/                      Dataset::open(root) or Dataset::open(root/v1.01-train)
@@ -16,6 +17,7 @@
 //! annotation sizes are [w, l, h] on disk and (l, w, h) in [`crate::geometry::Box3d`]; timestamps
 //! are float microseconds. Errors are [`DatasetError`], naming the file, table, token or field.
 
+pub mod av2;
 pub mod categories;
 pub mod error;
 pub mod frame;

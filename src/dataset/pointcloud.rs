@@ -90,6 +90,9 @@ pub enum PointLayout {
     /// KITTI `.bin`: x, y, z, reflectance (0–1, read as 0–255). The ring is recovered from the
     /// scan order where possible, else −1.
     XyzReflectance,
+    /// An Argoverse 2 sweep (feather): both roof LiDARs in one file, in the ego frame; read by
+    /// [`super::av2::sweep`], never by [`parse_points`].
+    Av2Sweep,
 }
 
 impl PointLayout {
@@ -98,6 +101,8 @@ impl PointLayout {
         match self {
             Self::XyzIntensityRing => POINT_BYTES,
             Self::XyzReflectance => 16,
+            // Not a record format; `parse_points` refuses it before dividing by this.
+            Self::Av2Sweep => 1,
         }
     }
 
@@ -106,6 +111,7 @@ impl PointLayout {
         match self {
             Self::XyzIntensityRing => "5 float32 per point: x, y, z, intensity, ring",
             Self::XyzReflectance => "4 float32 per point: x, y, z, reflectance (KITTI)",
+            Self::Av2Sweep => "an Argoverse 2 sweep (feather: x, y, z, intensity, laser_number)",
         }
     }
 }
@@ -122,6 +128,13 @@ pub fn parse_points(
     opts: LoadOptions,
     layout: PointLayout,
 ) -> Result<PointCloud, DatasetError> {
+    if layout == PointLayout::Av2Sweep {
+        return Err(DatasetError::BadColumn {
+            path: path.to_path_buf(),
+            column: None,
+            message: "an Argoverse 2 sweep is a feather file, not a record file; open its dataset".to_owned(),
+        });
+    }
     let width = layout.point_bytes();
     let tail = bytes.len() % width;
     if tail != 0 && !opts.lenient {
@@ -146,6 +159,7 @@ pub fn parse_points(
         let (i, r) = match layout {
             PointLayout::XyzIntensityRing => (i, r),
             PointLayout::XyzReflectance => (i * 255.0, -1.0),
+            PointLayout::Av2Sweep => (i, r),
         };
         if x.is_finite() && y.is_finite() && z.is_finite() && i.is_finite() && r.is_finite() {
             cloud.push(x, y, z, i, r);

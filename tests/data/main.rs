@@ -437,6 +437,7 @@ const KITTI_EXPECTED: [ExpectedBox; 4] = [
 mod sample_data;
 mod synth;
 
+mod av2;
 mod kitti_nuscenes;
 mod lyft_real;
 mod lyft_written;

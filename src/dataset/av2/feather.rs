@@ -1,0 +1,200 @@
+//! Argoverse 2's feather files (Apache Arrow IPC, LZ4-compressed) as typed columns.
+//!
+//! How it works: the file is read into memory and decoded by the `arrow-ipc` crate's file reader
+//! (which decompresses the LZ4 frames and validates every buffer); each record batch's column is
+//! then checked for its name and type and copied into one `Vec` over all batches. Every failure —
+//! a file that is not Arrow IPC, a missing column, a column of another type, a null in a column
+//! that must be filled — is [`DatasetError::BadColumn`] naming the file and the column, so a user
+//! can fix their data without reading our code.
+
+#![deny(clippy::indexing_slicing)]
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::{
+    Array, Float16Array, Float32Array, Float64Array, Int32Array, Int64Array, LargeStringArray, RecordBatch,
+    StringArray, UInt8Array,
+};
+use arrow_ipc::reader::FileReader;
+use arrow_schema::DataType;
+
+use crate::dataset::error::DatasetError;
+
+/// A feather file in memory: its record batches and the path errors name.
+#[derive(Debug, Clone)]
+pub struct Feather {
+    path: PathBuf,
+    batches: Vec<RecordBatch>,
+}
+
+fn bad(path: &Path, column: Option<&str>, message: impl Into<String>) -> DatasetError {
+    DatasetError::BadColumn {
+        path: path.to_path_buf(),
+        column: column.map(str::to_owned),
+        message: message.into(),
+    }
+}
+
+impl Feather {
+    /// Reads and decodes a feather file. A missing file is [`DatasetError::Io`] with
+    /// `NotFound`, so callers can tell it from a bad one.
+    pub fn read(path: &Path) -> Result<Self, DatasetError> {
+        let bytes = std::fs::read(path).map_err(|source| DatasetError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(bytes, path)
+    }
+
+    /// Decodes the bytes of a feather file; `path` only names the file in errors.
+    pub fn parse(bytes: Vec<u8>, path: &Path) -> Result<Self, DatasetError> {
+        let not_arrow = |e: arrow_schema::ArrowError| {
+            bad(
+                path,
+                None,
+                format!("not a readable feather (Arrow IPC) file: {e}"),
+            )
+        };
+        let reader = FileReader::try_new(std::io::Cursor::new(bytes), None).map_err(not_arrow)?;
+        let batches = reader.collect::<Result<Vec<_>, _>>().map_err(not_arrow)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            batches,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Rows over all batches.
+    pub fn num_rows(&self) -> usize {
+        self.batches.iter().map(RecordBatch::num_rows).sum()
+    }
+
+    /// The column's array in each batch, checked to have no nulls. A file with no batch has no
+    /// rows: any column is then empty (its schema is not checked).
+    fn arrays(&self, name: &str) -> Result<Vec<Arc<dyn Array>>, DatasetError> {
+        let mut out = Vec::with_capacity(self.batches.len());
+        for batch in &self.batches {
+            let Some(col) = batch.column_by_name(name) else {
+                let have: Vec<String> = batch.schema().fields().iter().map(|f| f.name().clone()).collect();
+                return Err(bad(
+                    &self.path,
+                    Some(name),
+                    format!("the column is missing (the file has: {})", have.join(", ")),
+                ));
+            };
+            if col.null_count() > 0 {
+                let row = (0..col.len()).find(|&i| col.is_null(i)).unwrap_or(0);
+                return Err(bad(
+                    &self.path,
+                    Some(name),
+                    format!("{} null value(s), the first at row {row}", col.null_count()),
+                ));
+            }
+            out.push(Arc::clone(col));
+        }
+        Ok(out)
+    }
+
+    fn wrong_type(&self, name: &str, want: &str, got: &DataType) -> DatasetError {
+        bad(&self.path, Some(name), format!("expected {want}, found {got}"))
+    }
+
+    /// A float64 column.
+    pub fn f64s(&self, name: &str) -> Result<Vec<f64>, DatasetError> {
+        let mut out = Vec::with_capacity(self.num_rows());
+        for a in self.arrays(name)? {
+            match a.as_any().downcast_ref::<Float64Array>() {
+                Some(v) => out.extend_from_slice(v.values()),
+                None => return Err(self.wrong_type(name, "float64", a.data_type())),
+            }
+        }
+        Ok(out)
+    }
+
+    /// A float16 or float32 column as f32 (AV2 stores point coordinates as float16).
+    pub fn f32s(&self, name: &str) -> Result<Vec<f32>, DatasetError> {
+        let mut out = Vec::with_capacity(self.num_rows());
+        for a in self.arrays(name)? {
+            if let Some(v) = a.as_any().downcast_ref::<Float16Array>() {
+                out.extend(v.values().iter().map(|h| h.to_f32()));
+            } else if let Some(v) = a.as_any().downcast_ref::<Float32Array>() {
+                out.extend_from_slice(v.values());
+            } else {
+                return Err(self.wrong_type(name, "float16 or float32", a.data_type()));
+            }
+        }
+        Ok(out)
+    }
+
+    /// A uint8 column.
+    pub fn u8s(&self, name: &str) -> Result<Vec<u8>, DatasetError> {
+        let mut out = Vec::with_capacity(self.num_rows());
+        for a in self.arrays(name)? {
+            match a.as_any().downcast_ref::<UInt8Array>() {
+                Some(v) => out.extend_from_slice(v.values()),
+                None => return Err(self.wrong_type(name, "uint8", a.data_type())),
+            }
+        }
+        Ok(out)
+    }
+
+    /// An int64 (or int32) column as i64.
+    pub fn i64s(&self, name: &str) -> Result<Vec<i64>, DatasetError> {
+        let mut out = Vec::with_capacity(self.num_rows());
+        for a in self.arrays(name)? {
+            if let Some(v) = a.as_any().downcast_ref::<Int64Array>() {
+                out.extend_from_slice(v.values());
+            } else if let Some(v) = a.as_any().downcast_ref::<Int32Array>() {
+                out.extend(v.values().iter().map(|&x| i64::from(x)));
+            } else {
+                return Err(self.wrong_type(name, "int64", a.data_type()));
+            }
+        }
+        Ok(out)
+    }
+
+    /// A string column.
+    pub fn strings(&self, name: &str) -> Result<Vec<String>, DatasetError> {
+        let mut out = Vec::with_capacity(self.num_rows());
+        for a in self.arrays(name)? {
+            if let Some(v) = a.as_any().downcast_ref::<StringArray>() {
+                out.extend(v.iter().map(|s| s.unwrap_or_default().to_owned()));
+            } else if let Some(v) = a.as_any().downcast_ref::<LargeStringArray>() {
+                out.extend(v.iter().map(|s| s.unwrap_or_default().to_owned()));
+            } else {
+                return Err(self.wrong_type(name, "string", a.data_type()));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Several float64 columns of equal length, row by row; a non-finite value is an error
+    /// naming its column and row.
+    pub fn finite_rows<const N: usize>(&self, names: [&str; N]) -> Result<Vec<[f64; N]>, DatasetError> {
+        let cols = names
+            .iter()
+            .map(|n| self.f64s(n))
+            .collect::<Result<Vec<_>, _>>()?;
+        let rows = self.num_rows();
+        let mut out = vec![[0.0; N]; rows];
+        for (col, name) in cols.iter().zip(names) {
+            if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                return Err(bad(
+                    &self.path,
+                    Some(name),
+                    format!("row {i} holds {}", col.get(i).copied().unwrap_or(f64::NAN)),
+                ));
+            }
+        }
+        for (r, row) in out.iter_mut().enumerate() {
+            for (v, col) in row.iter_mut().zip(&cols) {
+                *v = col.get(r).copied().unwrap_or(f64::NAN);
+            }
+        }
+        Ok(out)
+    }
+}

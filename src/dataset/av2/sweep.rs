@@ -1,0 +1,98 @@
+//! One LiDAR of an Argoverse 2 sweep: the feather file holds both roof LiDARs' points in the ego
+//! frame; this picks one LiDAR's points by laser number and moves them back into its own sensor
+//! frame, so that the pipeline's extrinsics and α act on them exactly as on a Lyft sweep.
+//!
+//! Which laser numbers are which LiDAR: 0–31 are `up_lidar`, 32–63 `down_lidar` (the devkit
+//! splits them the same way). The geometry says so too: a VLP-32C's laser is a cone of fixed
+//! elevation in its own frame, and lasers 0–31 hold their elevation to 0.05° (std) in
+//! `up_lidar`'s frame against 0.17° in `down_lidar`'s; tests/data/av2.rs checks it on the real
+//! sweeps.
+
+#![deny(clippy::indexing_slicing)]
+
+use std::path::Path;
+
+use nalgebra::Point3;
+
+use super::feather::Feather;
+use crate::dataset::error::DatasetError;
+use crate::dataset::index::LidarChannel;
+use crate::dataset::pointcloud::PointCloud;
+use crate::geometry::Pose;
+
+/// Lasers per LiDAR (a Velodyne VLP-32C).
+pub const LASERS_PER_LIDAR: u8 = 32;
+
+/// The first laser number of a LiDAR slot: `up_lidar` (LIDAR_TOP's slot) 0, `down_lidar`
+/// (LIDAR_FRONT_LEFT's slot) 32. `None` for a slot AV2 does not fill.
+pub fn first_laser(channel: LidarChannel) -> Option<u8> {
+    match channel {
+        LidarChannel::Top => Some(0),
+        LidarChannel::FrontLeft => Some(LASERS_PER_LIDAR),
+        LidarChannel::FrontRight => None,
+    }
+}
+
+/// The points of one LiDAR of a decoded sweep, in that LiDAR's sensor frame (`sensor_to_ego` is
+/// its calibration, T^e_l). Ring is the laser number within the LiDAR (0–31); intensity 0–255 as
+/// stored. Points with a non-finite coordinate are dropped and counted in `dropped`.
+pub fn lidar_points(
+    sweep: &Feather,
+    channel: LidarChannel,
+    sensor_to_ego: &Pose,
+) -> Result<PointCloud, DatasetError> {
+    let path = sweep.path();
+    let first = first_laser(channel).ok_or_else(|| DatasetError::BadColumn {
+        path: path.to_path_buf(),
+        column: None,
+        message: format!("an Argoverse 2 sweep has no {channel} LiDAR"),
+    })?;
+    let x = sweep.f32s("x")?;
+    let y = sweep.f32s("y")?;
+    let z = sweep.f32s("z")?;
+    let intensity = sweep.u8s("intensity")?;
+    let laser = sweep.u8s("laser_number")?;
+    if let Some(i) = laser.iter().position(|&l| l >= 2 * LASERS_PER_LIDAR) {
+        return Err(DatasetError::BadColumn {
+            path: path.to_path_buf(),
+            column: Some("laser_number".to_owned()),
+            message: format!(
+                "row {i} holds {}; the two VLP-32C of an Argoverse 2 sweep number their lasers 0–63",
+                laser.get(i).copied().unwrap_or_default()
+            ),
+        });
+    }
+    let ego_to_sensor = sensor_to_ego.inverse();
+    let n = laser
+        .iter()
+        .filter(|&&l| l / LASERS_PER_LIDAR == first / LASERS_PER_LIDAR)
+        .count();
+    let mut cloud = PointCloud::with_capacity(n);
+    for ((((&x, &y), &z), &i), &l) in x.iter().zip(&y).zip(&z).zip(&intensity).zip(&laser) {
+        if l / LASERS_PER_LIDAR != first / LASERS_PER_LIDAR {
+            continue;
+        }
+        if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+            cloud.dropped += 1;
+            continue;
+        }
+        let p = ego_to_sensor * Point3::new(f64::from(x), f64::from(y), f64::from(z));
+        cloud.push(
+            p.x as f32,
+            p.y as f32,
+            p.z as f32,
+            f32::from(i),
+            f32::from(l - first),
+        );
+    }
+    Ok(cloud)
+}
+
+/// Reads a sweep file and returns one LiDAR's points (see [`lidar_points`]).
+pub fn read_lidar(
+    path: &Path,
+    channel: LidarChannel,
+    sensor_to_ego: &Pose,
+) -> Result<PointCloud, DatasetError> {
+    lidar_points(&Feather::read(path)?, channel, sensor_to_ego)
+}
