@@ -46,6 +46,12 @@ pub struct CalibrateArgs {
     /// all samples, as on one car: more distinct starts for an accuracy table.
     #[arg(long)]
     pub per_sample: bool,
+    /// N perturbation draws per sample (seeds seed … seed+N−1), each started from its own drifted
+    /// extrinsic, plus one run started from the dataset's calibration (α = 0): that run's result
+    /// is ICP's fixed point, and every draw's distance to it is reported (repeatability; on real
+    /// data, where the factory calibration is not the truth).
+    #[arg(long, conflicts_with = "per_sample")]
+    pub draws: Option<usize>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -60,10 +66,38 @@ pub struct CalibrateArgs {
     pub dump: Option<PathBuf>,
 }
 
+/// An extrinsic as `mlod calibrate --json` prints it.
+#[derive(Serialize, Clone, Copy)]
+struct Estimate {
+    /// [w, x, y, z]
+    rotation: [f64; 4],
+    /// [x, y, z] (m)
+    translation: [f64; 3],
+}
+
+impl From<&mlod::geometry::Pose> for Estimate {
+    fn from(p: &mlod::geometry::Pose) -> Self {
+        let q = p.rotation;
+        let t = p.translation.vector;
+        Self {
+            rotation: [q.w, q.i, q.j, q.k],
+            translation: [t.x, t.y, t.z],
+        }
+    }
+}
+
 #[derive(Serialize)]
 struct Run {
     sample_token: String,
     channel: String,
+    /// The perturbation's seed of this run.
+    seed: u64,
+    /// The estimated extrinsic of this LiDAR in the base frame.
+    estimate: Estimate,
+    /// With `--draws`: the distance of the estimate to ICP's fixed point (the run started from
+    /// the dataset's calibration).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    to_fixed_point: Option<PoseError>,
     error_before: PoseError,
     error_after: PoseError,
     converged: bool,
@@ -89,7 +123,32 @@ struct Run {
 struct Quantiles {
     median: f64,
     p90: f64,
+    p95: f64,
     worst: f64,
+}
+
+/// With `--draws`: where the draws landed against ICP's fixed point.
+#[derive(Serialize)]
+struct Repeatability {
+    /// The runs started from the dataset's calibration, one per sample and LiDAR.
+    fixed_points: Vec<FixedPoint>,
+    rot_deg: Quantiles,
+    trans_m: Quantiles,
+    /// Draws within 0.01° and 1 mm of their fixed point.
+    within_001deg_1mm: usize,
+    /// Draws farther than that without a flag (not converged or degenerate).
+    off_unflagged: usize,
+}
+
+#[derive(Serialize)]
+struct FixedPoint {
+    sample_token: String,
+    channel: String,
+    estimate: Estimate,
+    /// Its distance to the dataset's calibration.
+    from_dataset: PoseError,
+    converged: bool,
+    degenerate: Vec<String>,
 }
 
 #[derive(Serialize)]
@@ -119,6 +178,7 @@ fn quantiles(mut v: Vec<f64>) -> Quantiles {
     Quantiles {
         median: at(0.5),
         p90: at(0.9),
+        p95: at(0.95),
         worst: v[v.len() - 1],
     }
 }
@@ -163,52 +223,80 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let tokens = tokens(&dataset, &args)?;
     let config = IcpConfig::with_overrides(&args.icp)?;
     let mut runs = Vec::new();
+    let mut fixed_points = Vec::new();
     for (i, token) in tokens.iter().enumerate() {
         let frame = dataset.frame(token).with_context(|| format!("sample {token}"))?;
-        let seed = if args.per_sample {
-            args.seed + i as u64
-        } else {
-            args.seed
-        };
-        let params = FuseParams {
-            perturbation: Perturbation::new(args.alpha, seed)?,
-            ..Default::default()
-        };
-        let cal = calibrate(&frame, &params, &config, OcPrior::Icp)
-            .with_context(|| format!("calibrating sample {token}"))?;
-        if let Some(dir) = &args.dump {
-            dump(dir, &frame, &params, &cal, &config)?;
+        // With --draws: the run from the dataset's calibration first (the fixed point).
+        let mut fixed = std::collections::BTreeMap::new();
+        if args.draws.is_some() {
+            let params = FuseParams::default();
+            let cal = calibrate(&frame, &params, &config, OcPrior::Icp)
+                .with_context(|| format!("calibrating sample {token} from its calibration"))?;
+            for l in &cal.lidars {
+                let truth = frame
+                    .lidar(l.channel)
+                    .map(|s| s.info.extrinsic)
+                    .context("calibrated LiDAR missing from its frame")?;
+                fixed.insert(l.channel, l.extrinsic);
+                fixed_points.push(FixedPoint {
+                    sample_token: token.clone(),
+                    channel: l.channel.as_str().to_string(),
+                    estimate: Estimate::from(&l.extrinsic),
+                    from_dataset: l.error(&truth),
+                    converged: l.converged,
+                    degenerate: l.degenerate_axes(),
+                });
+            }
         }
-        for l in &cal.lidars {
-            let truth = frame
-                .lidar(l.channel)
-                .map(|s| s.info.extrinsic)
-                .context("calibrated LiDAR missing from its frame")?;
-            let s = l.std();
-            runs.push(Run {
-                sample_token: token.clone(),
-                channel: l.channel.as_str().to_string(),
-                error_before: l.error_before(&truth),
-                error_after: l.error(&truth),
-                converged: l.converged,
-                degenerate: l.degenerate_axes(),
-                fitness: l.fitness,
-                rmse: l.rmse,
-                iterations: l.iterations,
-                correspondences: l.correspondences,
-                eigenvalues: l.eigenvalues,
-                covariance: l.covariance,
-                std: [
-                    s[0],
-                    s[1],
-                    s[2],
-                    s[3].to_degrees(),
-                    s[4].to_degrees(),
-                    s[5].to_degrees(),
-                ],
-                mahalanobis2: mahalanobis2(l, &truth),
-                ms: l.ms,
-            });
+        let seeds: Vec<u64> = match args.draws {
+            Some(n) => (0..n as u64).map(|k| args.seed + k).collect(),
+            None if args.per_sample => vec![args.seed + i as u64],
+            None => vec![args.seed],
+        };
+        for seed in seeds {
+            let params = FuseParams {
+                perturbation: Perturbation::new(args.alpha, seed)?,
+                ..Default::default()
+            };
+            let cal = calibrate(&frame, &params, &config, OcPrior::Icp)
+                .with_context(|| format!("calibrating sample {token}"))?;
+            if let Some(dir) = &args.dump {
+                dump(dir, &frame, &params, &cal, &config)?;
+            }
+            for l in &cal.lidars {
+                let truth = frame
+                    .lidar(l.channel)
+                    .map(|s| s.info.extrinsic)
+                    .context("calibrated LiDAR missing from its frame")?;
+                let s = l.std();
+                runs.push(Run {
+                    sample_token: token.clone(),
+                    channel: l.channel.as_str().to_string(),
+                    seed,
+                    estimate: Estimate::from(&l.extrinsic),
+                    to_fixed_point: fixed.get(&l.channel).map(|f| PoseError::between(&l.extrinsic, f)),
+                    error_before: l.error_before(&truth),
+                    error_after: l.error(&truth),
+                    converged: l.converged,
+                    degenerate: l.degenerate_axes(),
+                    fitness: l.fitness,
+                    rmse: l.rmse,
+                    iterations: l.iterations,
+                    correspondences: l.correspondences,
+                    eigenvalues: l.eigenvalues,
+                    covariance: l.covariance,
+                    std: [
+                        s[0],
+                        s[1],
+                        s[2],
+                        s[3].to_degrees(),
+                        s[4].to_degrees(),
+                        s[5].to_degrees(),
+                    ],
+                    mahalanobis2: mahalanobis2(l, &truth),
+                    ms: l.ms,
+                });
+            }
         }
     }
     let flagged = |r: &Run| !r.converged || !r.degenerate.is_empty();
@@ -239,8 +327,25 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         median_mahalanobis2: maha.get(maha.len() / 2).copied().unwrap_or(f64::NAN),
         mean_ms: runs.iter().map(|r| r.ms).sum::<f64>() / runs.len().max(1) as f64,
     };
+    let repeatability = args.draws.map(|_| {
+        let to: Vec<PoseError> = runs.iter().filter_map(|r| r.to_fixed_point).collect();
+        let close = |e: &PoseError| e.rot_deg <= 0.01 && e.trans_m <= 0.001;
+        Repeatability {
+            fixed_points,
+            rot_deg: quantiles(to.iter().map(|e| e.rot_deg).collect()),
+            trans_m: quantiles(to.iter().map(|e| e.trans_m).collect()),
+            within_001deg_1mm: to.iter().filter(|e| close(e)).count(),
+            off_unflagged: runs
+                .iter()
+                .filter(|r| !flagged(r) && r.to_fixed_point.is_some_and(|e| !close(&e)))
+                .count(),
+        }
+    });
     if args.json {
-        let out = serde_json::json!({ "runs": runs, "summary": summary });
+        let mut out = serde_json::json!({ "runs": runs, "summary": summary });
+        if let Some(r) = &repeatability {
+            out["repeatability"] = serde_json::to_value(r)?;
+        }
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
@@ -296,6 +401,37 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             &summary.trans_m_after,
             100.0,
             "cm",
+        );
+    }
+    if let Some(r) = &repeatability {
+        println!("\nICP's fixed points (started from the dataset's calibration):");
+        for f in &r.fixed_points {
+            println!(
+                "  {} {}: {:.4} deg / {:.3} cm from the dataset's calibration, converged {}{}",
+                f.sample_token,
+                f.channel,
+                f.from_dataset.rot_deg,
+                f.from_dataset.trans_m * 100.0,
+                f.converged,
+                if f.degenerate.is_empty() {
+                    String::new()
+                } else {
+                    format!(", degenerate {}", f.degenerate.join(","))
+                }
+            );
+        }
+        println!(
+            "draws to their fixed point: rotation median {:.5} p95 {:.5} max {:.5} deg; translation median {:.4} p95 {:.4} max {:.4} cm; \
+             {} of {} within 0.01 deg and 1 mm; {} farther without a flag",
+            r.rot_deg.median,
+            r.rot_deg.p95,
+            r.rot_deg.worst,
+            r.trans_m.median * 100.0,
+            r.trans_m.p95 * 100.0,
+            r.trans_m.worst * 100.0,
+            r.within_001deg_1mm,
+            runs.len(),
+            r.off_unflagged
         );
     }
     Ok(())

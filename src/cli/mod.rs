@@ -36,6 +36,8 @@ Examples:
                                                                        accuracy over 20 samples
   mlod calibrate --dataset data/test --alpha 0.1 --samples 20 --spread --per-sample --json
   mlod calibrate --dataset sample_data --alpha 0.1 --dump icp-dump     the clouds, for Open3D
+  mlod calibrate --dataset av2/sensor/val --samples 2 --alpha 0.1 --draws 20
+                                                                       repeatability against ICP's fixed point
   mlod eval --dataset data/test --case input-oc --alpha 0.1            detection after calibration";
 
 pub const SWEEP_EXAMPLES: &str = "\
