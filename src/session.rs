@@ -166,6 +166,9 @@ pub struct OcSession {
     pub calibration: Option<Calibration>,
     /// Fuse with the corrected extrinsics instead of the drifted ones.
     pub show_corrected: bool,
+    /// Fuse with the dataset's own extrinsics (the factory calibration on real data): no
+    /// perturbation, no calibration; tr(Ξ) keeps the prior of the α set.
+    pub show_factory: bool,
     /// The uncertainty the calibrated LiDARs' points carry (and the tr(Ξ) colouring shows).
     pub prior: OcPrior,
 }
@@ -216,9 +219,16 @@ impl Default for DetectionSettings {
 
 impl Session {
     /// The fuse parameters of the view: the perturbation, plus the calibration when the corrected
-    /// cloud is shown (with the session's choice of prior).
+    /// cloud is shown (with the session's choice of prior); without either in the factory view.
     pub fn fuse_params(&self) -> FuseParams {
         let mut p = self.fuse.clone();
+        if self.oc.show_factory {
+            p.prior_alpha = Some(p.effective_prior_alpha());
+            p.perturbation.alpha = 0.0;
+            p.manual.clear();
+            p.calibration = None;
+            return p;
+        }
         p.calibration = match (&self.oc.calibration, self.oc.show_corrected) {
             (Some(c), true) => Some(Calibration {
                 prior: self.oc.prior,

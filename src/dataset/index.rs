@@ -122,6 +122,15 @@ impl DatasetFormat {
         }
     }
 
+    /// The LiDAR slots this format fills (Argoverse 2: LIDAR_TOP and LIDAR_FRONT_LEFT; the others
+    /// may fill all three).
+    pub fn lidars(self) -> &'static [LidarChannel] {
+        match self {
+            Self::Av2 => &[LidarChannel::Top, LidarChannel::FrontLeft],
+            _ => &LidarChannel::ALL,
+        }
+    }
+
     /// The rig in one line, for banners and `mlod inspect`; `None` for the formats whose
     /// LiDARs are the channels' own.
     pub fn rig(self) -> Option<&'static str> {

@@ -141,7 +141,12 @@ pub fn show(
                 .lidars
                 .iter()
                 .find(|l| l.range.contains(&k))
-                .map(|l| l.channel.paper_name())
+                .map(|l| {
+                    crate::gui::state::lidar_name(
+                        input.loaded.dataset.as_ref().map(|d| d.format()),
+                        l.channel,
+                    )
+                })
                 .unwrap_or("?");
             result.message = Some(format!("focused a {ch} point, tr(Ξ) = {:.4} m²", cloud.trace[k]));
         }

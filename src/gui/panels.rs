@@ -52,6 +52,21 @@ impl Panels<'_> {
     fn act(&mut self, a: Action) {
         self.actions.push(a);
     }
+
+    /// The format of the dataset on screen.
+    fn format(&self) -> Option<crate::dataset::DatasetFormat> {
+        self.loaded.dataset.as_ref().map(|d| d.format())
+    }
+
+    /// The LiDAR slots the dataset's format fills (Argoverse 2: two).
+    fn lidars(&self) -> &'static [LidarChannel] {
+        self.format().map_or(&LidarChannel::ALL, |f| f.lidars())
+    }
+
+    /// A LiDAR's name in its colour, as the dataset names it.
+    fn label(&self, ch: LidarChannel) -> egui::RichText {
+        lidar_label(self.format(), ch)
+    }
 }
 
 /// The keyboard shortcuts (when no text field has the focus): D runs the detector, ←/→ step
@@ -245,7 +260,7 @@ pub fn status_bar(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 (Some(f), Some(c)) => {
                     ui.label(format!("{} points", c.len()));
                     for (ch, n) in channel_counts(c) {
-                        ui.label(lidar_label(ch));
+                        ui.label(lidar_label(p.format(), ch));
                         ui.label(format!("{n}"));
                     }
                     ui.separator();
@@ -460,8 +475,11 @@ fn perturbation_controls(p: &mut Panels<'_>, ui: &mut egui::Ui, has_aux: bool) {
         }
     });
     for ch in [LidarChannel::FrontLeft, LidarChannel::FrontRight] {
+        if !p.lidars().contains(&ch) {
+            continue;
+        }
         let sampled = p.session.sampled.get(&ch).copied();
-        egui::CollapsingHeader::new(lidar_label(ch))
+        egui::CollapsingHeader::new(p.label(ch))
             .id_salt(ch.as_str())
             .default_open(false)
             .show(ui, |ui| {
@@ -498,6 +516,7 @@ fn perturbation_controls(p: &mut Panels<'_>, ui: &mut egui::Ui, has_aux: bool) {
     }
     p.session.fuse.manual.retain(|_, n| *n != ExtrinsicNoise::ZERO);
     if changed {
+        p.session.oc.show_factory = false;
         p.act(Action::Refuse);
     }
 }
@@ -538,9 +557,9 @@ fn view_controls(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     coloring::palette(p, ui);
     let mut changed = false;
     ui.horizontal(|ui| {
-        for ch in LidarChannel::ALL {
+        for &ch in p.lidars() {
             let mut v = p.session.visible.get(&ch).copied().unwrap_or(true);
-            if ui.checkbox(&mut v, lidar_label(ch)).changed() {
+            if ui.checkbox(&mut v, p.label(ch)).changed() {
                 p.session.visible.insert(ch, v);
                 changed = true;
             }

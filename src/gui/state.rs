@@ -12,7 +12,7 @@ use eframe::egui;
 use egui::{Color32, RichText};
 
 use crate::analysis::inspect::{PointsInside, PredictionDetails};
-use crate::dataset::{Dataset, Frame, LidarChannel, SampleSummary};
+use crate::dataset::{Dataset, DatasetFormat, Frame, LidarChannel, SampleSummary};
 use crate::detect::{Case, Detection};
 use crate::eval::{match_drawn, GtOutcome, MatchRule, PredOutcome};
 use crate::geometry::{iou_3d, IouKind};
@@ -603,10 +603,19 @@ pub fn channel_counts(cloud: &FusedCloud) -> BTreeMap<LidarChannel, usize> {
     cloud.lidars.iter().map(|l| (l.channel, l.range.len())).collect()
 }
 
+/// A LiDAR's name: the rig's own for a format that names its LiDARs (Argoverse 2's `up_lidar`,
+/// `down_lidar`), else the paper's (LiDAR-Top, …).
+pub fn lidar_name(format: Option<DatasetFormat>, ch: LidarChannel) -> &'static str {
+    match format {
+        Some(f) if f.rig().is_some() => f.lidar_name(ch),
+        _ => ch.paper_name(),
+    }
+}
+
 /// A LiDAR's name in its paper colour.
-pub fn lidar_label(ch: LidarChannel) -> RichText {
+pub fn lidar_label(format: Option<DatasetFormat>, ch: LidarChannel) -> RichText {
     let [r, g, b, _] = crate::color::LIDAR_COLORS[ch as usize];
-    RichText::new(ch.paper_name()).color(Color32::from_rgb(r, g, b))
+    RichText::new(lidar_name(format, ch)).color(Color32::from_rgb(r, g, b))
 }
 
 /// An sRGB(A) colour of the palette as egui's.

@@ -265,6 +265,7 @@ mod models;
 mod viewport;
 mod visibility;
 
+mod av2;
 mod browse;
 mod detection;
 mod window;

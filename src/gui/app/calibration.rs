@@ -60,6 +60,7 @@ impl MlodApp {
                 self.loaded.calibrate_ms = millis;
                 self.session.oc.calibration = Some(cal);
                 self.session.oc.show_corrected = true;
+                self.session.oc.show_factory = false;
                 self.refuse_now(now, false);
                 if std::mem::take(&mut self.detect_after_calibration) {
                     self.run_detector();

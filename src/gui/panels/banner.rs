@@ -5,6 +5,7 @@ use eframe::egui;
 use egui::{Color32, RichText};
 
 use super::Panels;
+use crate::dataset::LidarChannel;
 
 /// Why the perturbation controls are off on a LIDAR_TOP-only sample (their tooltip).
 pub(super) const NO_AUXILIARY: &str = "This sample has LIDAR_TOP only: α, play α, the manual offsets and \
@@ -32,10 +33,31 @@ pub fn banner(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     );
             });
     }
+    let rig = p.loaded.dataset.as_ref().and_then(|d| d.format().rig());
+    if let Some(rig) = rig {
+        egui::Panel::top("rig_banner")
+            .frame(
+                egui::Frame::new()
+                    .fill(Color32::from_rgb(28, 58, 84))
+                    .inner_margin(egui::Margin::symmetric(8, 4)),
+            )
+            .show(ui, |ui| {
+                ui.label(RichText::new(format!(
+                    "{rig}. α perturbs down_lidar; calibrate (ICP) aligns it to up_lidar; fusion cases fuse both."
+                ))
+                .color(Color32::from_rgb(200, 225, 250)));
+            });
+    }
     let Some(frame) = p.loaded.frame.clone() else {
         return;
     };
-    let missing = frame.missing_auxiliaries();
+    let slots = p
+        .loaded
+        .dataset
+        .as_ref()
+        .map_or(&LidarChannel::ALL[..], |d| d.format().lidars());
+    let mut missing = frame.missing_auxiliaries();
+    missing.retain(|c| slots.contains(c));
     if missing.is_empty() {
         return;
     }

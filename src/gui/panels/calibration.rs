@@ -8,7 +8,7 @@ use egui::{Color32, RichText};
 
 use super::Panels;
 use crate::calib::{OcPrior, PoseError};
-use crate::gui::state::{lidar_label, Action};
+use crate::gui::state::Action;
 
 pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     ui.label(RichText::new("Online calibration (ICP)").strong());
@@ -41,6 +41,9 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             p.act(Action::CancelCalibration);
         }
     });
+    if has_aux {
+        view_selector(p, ui);
+    }
     let Some(cal) = p.session.oc.calibration.clone() else {
         let text = if has_aux {
             "not calibrated: the cloud uses the drifted extrinsics"
@@ -55,7 +58,7 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     for l in &cal.lidars {
         // Wrapped rows: nothing runs off the panel's right edge at 1280×800.
         ui.horizontal_wrapped(|ui| {
-            ui.label(lidar_label(l.channel));
+            ui.label(p.label(l.channel));
             let truth = frame
                 .as_ref()
                 .and_then(|f| f.lidar(l.channel))
@@ -101,10 +104,7 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
         });
     }
     ui.label(RichText::new("error against the true extrinsic: drifted -> calibrated").weak());
-    let mut changed = ui
-        .checkbox(&mut p.session.oc.show_corrected, "show corrected cloud")
-        .on_hover_text("Fuse with ICP's extrinsics (on) or the drifted ones (off)")
-        .changed();
+    let mut changed = false;
     ui.horizontal_wrapped(|ui| {
         ui.label("tr(Ξ) after calibration");
         changed |= ui
@@ -119,4 +119,47 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
     if changed {
         p.act(Action::Refuse);
     }
+}
+
+/// Which extrinsics the cloud on screen uses, one click each: the dataset's own (the factory
+/// calibration on real data), the perturbed ones (α and the offsets), or ICP's (calibrating first
+/// when there is no current calibration).
+fn view_selector(p: &mut Panels<'_>, ui: &mut egui::Ui) {
+    #[derive(PartialEq, Clone, Copy)]
+    enum View {
+        Factory,
+        Perturbed,
+        Icp,
+    }
+    let oc = &p.session.oc;
+    let current = if oc.show_factory {
+        View::Factory
+    } else if oc.show_corrected && oc.calibration.is_some() {
+        View::Icp
+    } else {
+        View::Perturbed
+    };
+    let mut view = current;
+    ui.horizontal(|ui| {
+        ui.label("view");
+        ui.radio_value(&mut view, View::Factory, "factory").on_hover_text(
+            "The dataset's own extrinsics (on real data, the factory calibration): no perturbation",
+        );
+        ui.radio_value(&mut view, View::Perturbed, "perturbed")
+            .on_hover_text("The extrinsics perturbed by α and the manual offsets");
+        ui.radio_value(&mut view, View::Icp, "ICP")
+            .on_hover_text("ICP's estimate from the perturbed start (calibrates first if needed)");
+    });
+    if view == current {
+        return;
+    }
+    p.session.oc.show_factory = view == View::Factory;
+    p.session.oc.show_corrected = view == View::Icp;
+    if view == View::Icp && p.session.oc.calibration.is_none() {
+        if p.loaded.calibrating.is_none() {
+            p.act(Action::Calibrate);
+        }
+        return;
+    }
+    p.act(Action::Refuse);
 }

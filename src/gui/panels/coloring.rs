@@ -9,8 +9,7 @@ use egui::{Color32, RichText, Sense, Stroke};
 
 use super::Panels;
 use crate::color::{normalize, ticks, ColorMode, Palette, Scale, HIGHLIGHT};
-use crate::dataset::LidarChannel;
-use crate::gui::state::{color32, lidar_label, Action};
+use crate::gui::state::{color32, Action};
 use crate::uncertainty::UNCERTAIN_TRACE;
 
 /// Space left of and right of the bar and the histogram, so that no tick label is cut.
@@ -147,9 +146,9 @@ fn legend(p: &Panels<'_>, ui: &mut egui::Ui) {
     let c = &p.session.color;
     if c.mode == ColorMode::Source {
         ui.horizontal(|ui| {
-            for ch in LidarChannel::ALL {
+            for &ch in p.lidars() {
                 let [r, g, b, _] = c.palette.lidar(ch as usize);
-                let name = lidar_label(ch).color(Color32::from_rgb(r, g, b));
+                let name = p.label(ch).color(Color32::from_rgb(r, g, b));
                 ui.label(name);
             }
         });

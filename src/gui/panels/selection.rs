@@ -58,7 +58,7 @@ pub(super) fn selection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                 None if p.loaded.detection.is_some() => ui.label("missed by the detection on screen"),
                 None => ui.label(RichText::new("no detection on this sample yet").weak()),
             };
-            points(ui, "points inside", inside);
+            points(ui, "points inside", inside, p.format());
         }
         SelectionDetails::Prediction {
             layer, details: d, ..
@@ -94,7 +94,7 @@ pub(super) fn selection(p: &mut Panels<'_>, ui: &mut egui::Ui) {
                     ui.label(RichText::new("no ground truth overlaps it: a false positive").weak());
                 }
             }
-            points(ui, "points inside", &d.inside);
+            points(ui, "points inside", &d.inside, p.format());
             if let Some(a) = &d.active {
                 ui.label(format!(
                     "active points {}: uncertain |P_u|/|P| {:.0} % ({} of them)",
@@ -173,11 +173,11 @@ fn residuals(
 }
 
 /// Points per LiDAR, the uncertain share and the tr(Ξ) histogram of a box's points.
-fn points(ui: &mut egui::Ui, title: &str, p: &PointsInside) {
+fn points(ui: &mut egui::Ui, title: &str, p: &PointsInside, format: Option<crate::dataset::DatasetFormat>) {
     ui.horizontal_wrapped(|ui| {
         ui.label(format!("{title} {}:", p.total));
         for (ch, n) in &p.per_lidar {
-            ui.label(lidar_label(*ch));
+            ui.label(lidar_label(format, *ch));
             ui.label(n.to_string());
         }
     });
