@@ -98,6 +98,12 @@ impl Target {
         })
     }
 
+    /// The nearest target point to `p`: its index and squared distance.
+    pub fn nearest(&self, p: &[f32; 3]) -> (usize, f32) {
+        let n = self.tree.nearest_one::<SquaredEuclidean>(p);
+        (n.item as usize, n.distance)
+    }
+
     /// Points with a normal.
     pub fn planar_points(&self) -> usize {
         self.normals.iter().filter(|n| n[0].is_finite()).count()

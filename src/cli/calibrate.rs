@@ -52,6 +52,15 @@ pub struct CalibrateArgs {
     /// data, where the factory calibration is not the truth).
     #[arg(long, conflicts_with = "per_sample")]
     pub draws: Option<usize>,
+    /// Instead of calibrating from the perturbation: the auxiliary LiDARs' point-to-plane
+    /// residuals on the primary's surfaces, per surface and range, at the dataset's extrinsics
+    /// and at ICP's fixed point (which of the two aligns the surfaces better).
+    #[arg(long)]
+    pub alignment: bool,
+    /// Instead of calibrating: the χ² check of Ξ at --alpha over --draws (default 20) unbounded
+    /// draws: how far each auxiliary point moves off the primary's surfaces against √(nᵀΞn).
+    #[arg(long)]
+    pub xi_check: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -222,6 +231,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let dataset = super::open_dataset(&args.dataset)?;
     let tokens = tokens(&dataset, &args)?;
     let config = IcpConfig::with_overrides(&args.icp)?;
+    if args.alignment || args.xi_check {
+        return super::alignment::run(&dataset, &tokens, &args, &config);
+    }
     let mut runs = Vec::new();
     let mut fixed_points = Vec::new();
     for (i, token) in tokens.iter().enumerate() {

@@ -1,6 +1,7 @@
 //! The `mlod` subcommands, one file per subcommand or group; `main.rs` parses and dispatches.
 //! Every command takes its data from the library and only formats it (text, JSON, CSV, PNG).
 
+pub mod alignment;
 pub mod analyze;
 pub mod args;
 pub mod calibrate;
@@ -38,6 +39,8 @@ Examples:
   mlod calibrate --dataset sample_data --alpha 0.1 --dump icp-dump     the clouds, for Open3D
   mlod calibrate --dataset av2/sensor/val --samples 2 --alpha 0.1 --draws 20
                                                                        repeatability against ICP's fixed point
+  mlod calibrate --dataset av2/sensor/val --samples 2 --alignment     residuals: dataset's extrinsic vs ICP's
+  mlod calibrate --dataset av2/sensor/val --samples 2 --alpha 0.04 --xi-check   the χ² check of Ξ
   mlod eval --dataset data/test --case input-oc --alpha 0.1            detection after calibration";
 
 pub const SWEEP_EXAMPLES: &str = "\
