@@ -1,6 +1,7 @@
-//! Lyft loader benchmarks (targets from issue 3): load one three-LiDAR frame of 150 000 points
-//! (70k + 40k + 40k, target ≤ 20 ms) and open the tables of a 2000-sample dataset (target ≤ 2 s).
-//! Both datasets are synthetic, written once in the setup into a temporary folder with the
+//! Loader benchmarks (targets from issue 3): load one three-LiDAR frame of 150 000 points
+//! (70k + 40k + 40k, target ≤ 20 ms) and open the tables of a 2000-sample dataset (target ≤ 2 s);
+//! and a real Argoverse 2 sweep (two LiDARs, 99k points) and its log's index, against them.
+//! Both Lyft datasets are synthetic, written once in the setup into a temporary folder with the
 //! library's own writers, and removed at the end.
 
 use std::hint::black_box;
@@ -279,6 +280,26 @@ fn bench(c: &mut Criterion) {
             assert_eq!(d.tables().sample.len(), 2000);
             d
         })
+    });
+    g.finish();
+
+    // The real Argoverse 2 sweep of tests/fixtures/av2: one feather file, two LiDARs (51 785 +
+    // 47 444 points), decoded, split by laser and moved into each sensor frame; per point it
+    // should cost what a Lyft frame does.
+    let av2 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/av2");
+    let ds = Dataset::open(&av2).expect("open the AV2 fixture");
+    let sweep = ds.first_sample_token().expect("a sweep").to_owned();
+    let n = ds.frame(&sweep).expect("AV2 frame").num_points();
+    let mut g = c.benchmark_group("av2_frame");
+    g.throughput(Throughput::Elements(n as u64));
+    g.bench_function("sweep_2lidar_99k", |b| {
+        b.iter(|| ds.frame(black_box(&sweep)).expect("frame"))
+    });
+    g.finish();
+    let mut g = c.benchmark_group("av2_log");
+    g.sample_size(10);
+    g.bench_function("open_log_11k_cuboids", |b| {
+        b.iter(|| Dataset::open(black_box(&av2)).expect("open"))
     });
     g.finish();
 }

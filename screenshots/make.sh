@@ -26,3 +26,7 @@ done
 convert \( screenshots/calibration_before.png -crop 680x750+270+25 +repage \) \( -size 6x750 xc:'#9aa0a6' \) \
   \( screenshots/calibration_after.png -crop 680x750+270+25 +repage \) +append screenshots/calibration.png
 echo "wrote screenshots/calibration.png"
+# The README's real Argoverse 2 sweep at α = 0.04 coloured by tr(Ξ), before and after ICP.
+convert \( screenshots/av2_trace.png -crop 700x685+230+90 +repage \) \( -size 6x685 xc:'#9aa0a6' \) \
+  \( screenshots/av2_icp.png -crop 700x685+230+90 +repage \) +append screenshots/av2.png
+echo "wrote screenshots/av2.png"

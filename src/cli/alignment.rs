@@ -10,8 +10,6 @@ use mlod::calib::{IcpConfig, OcPrior, PoseError};
 use mlod::dataset::Dataset;
 use mlod::pipeline::{calibrate, FuseParams};
 
-use super::calibrate::CalibrateArgs;
-
 #[derive(Serialize)]
 struct Alignment {
     sample_token: String,
@@ -31,7 +29,17 @@ struct Check {
     check: XiCheck,
 }
 
-pub fn run(dataset: &Dataset, tokens: &[String], args: &CalibrateArgs, config: &IcpConfig) -> Result<()> {
+/// What `mlod calibrate` asked for.
+pub struct Request {
+    pub alignment: bool,
+    pub xi_check: bool,
+    pub alpha: f64,
+    pub seed: u64,
+    pub draws: Option<usize>,
+    pub json: bool,
+}
+
+pub fn run(dataset: &Dataset, tokens: &[String], args: &Request, config: &IcpConfig) -> Result<()> {
     let cfg = AlignConfig::default();
     let mut alignments = Vec::new();
     let mut checks = Vec::new();

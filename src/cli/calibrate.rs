@@ -232,7 +232,15 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let tokens = tokens(&dataset, &args)?;
     let config = IcpConfig::with_overrides(&args.icp)?;
     if args.alignment || args.xi_check {
-        return super::alignment::run(&dataset, &tokens, &args, &config);
+        let request = super::alignment::Request {
+            alignment: args.alignment,
+            xi_check: args.xi_check,
+            alpha: args.alpha,
+            seed: args.seed,
+            draws: args.draws,
+            json: args.json,
+        };
+        return super::alignment::run(&dataset, &tokens, &request, &config);
     }
     let mut runs = Vec::new();
     let mut fixed_points = Vec::new();

@@ -137,6 +137,12 @@ pub fn detect_help() -> String {
     }
     s.push_str("  ext:NAME        an external detector over mlod-detector/1 (docs/external.md)\n");
     s.push_str("  mlod-ext:NAME   the refiner on an external detector's proposals\n\n");
+    s.push_str(
+        "On a rig with fewer LiDARs the cases read the slots that are there: Argoverse 2's up_lidar\n\
+         plays LiDAR-Top and down_lidar LiDAR-Left; LiDAR-Right has no points there, and the fusion\n\
+         cases (and MLOD) fuse the two LiDARs (docs/av2.md). A LIDAR_TOP-only sample (KITTI,\n\
+         nuScenes, most real Lyft scenes) runs every fusion case on LIDAR_TOP alone.\n\n",
+    );
     s.push_str(DETECT_EXAMPLES);
     s
 }

@@ -104,3 +104,23 @@ fn factory_perturbed_and_icp_views_are_one_click_each() {
     assert_eq!(down_points(&h), perturbed);
     assert!(h.state().session().oc.calibration.is_some());
 }
+
+/// Writes the README's AV2 screenshots' sessions (screenshots/make.sh renders them): the real
+/// sweep at α = 0.04 coloured by tr(Ξ), and the same after ICP.
+#[test]
+#[ignore = "writes screenshots/*.session.json; run with --ignored write_screenshot_sessions"]
+fn write_screenshot_sessions_av2() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("screenshots");
+    let save = |h: &Harness<'static, MlodApp>, name: &str| {
+        let mut s = h.state().current_session();
+        s.dataset = "tests/fixtures/av2".into();
+        s.save(&dir.join(format!("{name}.session.json"))).unwrap();
+    };
+    let mut h = harness_on(av2_fixture(), Some(av2_session(0.04)));
+    h.run_steps(2);
+    save(&h, "av2_trace");
+    h.get_by_label("ICP").click();
+    h.run_steps(4);
+    assert!(h.state().session().oc.show_corrected);
+    save(&h, "av2_icp");
+}

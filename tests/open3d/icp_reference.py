@@ -81,6 +81,7 @@ def main() -> int:
                 "before": pose_error(start, truth),
                 "mlod": pose_error(ours, truth),
                 "open3d": pose_error(o3d_pose, truth),
+                "mlod_vs_open3d": pose_error(ours, o3d_pose),
                 "mlod_ms": lidar["ours_ms"],
                 "open3d_ms": o3d_ms,
             }
@@ -89,6 +90,7 @@ def main() -> int:
                 f"{row['sample']} {row['lidar']:<18} before {row['before'][0]:.3f} deg {row['before'][1]*100:.2f} cm"
                 f" | mlod {row['mlod'][0]:.4f} deg {row['mlod'][1]*100:.3f} cm {row['mlod_ms']:.1f} ms"
                 f" | open3d {row['open3d'][0]:.4f} deg {row['open3d'][1]*100:.3f} cm {row['open3d_ms']:.1f} ms"
+                f" | mlod vs open3d {row['mlod_vs_open3d'][0]:.4f} deg {row['mlod_vs_open3d'][1]*100:.3f} cm"
             )
     if not rows:
         print(f"no *.json in {args.dir}: run `mlod calibrate ... --dump {args.dir}` first", file=sys.stderr)
@@ -99,7 +101,7 @@ def main() -> int:
         v = sorted(r[key][i] for r in rows)
         return v[min(len(v) - 1, round(p * (len(v) - 1)))]
 
-    for key in ("before", "mlod", "open3d"):
+    for key in ("before", "mlod", "open3d", "mlod_vs_open3d"):
         print(
             f"{key:<7} rotation median {q(key, 0, 0.5):.4f} p90 {q(key, 0, 0.9):.4f} worst {q(key, 0, 1.0):.4f} deg;"
             f" translation median {q(key, 1, 0.5)*100:.3f} p90 {q(key, 1, 0.9)*100:.3f} worst {q(key, 1, 1.0)*100:.3f} cm"

@@ -103,7 +103,12 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             ));
         });
     }
-    ui.label(RichText::new("error against the true extrinsic: drifted -> calibrated").weak());
+    let against = if p.format().is_some_and(|f| f.rig().is_some()) {
+        "error against the factory calibration (on real data not the truth): drifted -> calibrated"
+    } else {
+        "error against the true extrinsic: drifted -> calibrated"
+    };
+    ui.label(RichText::new(against).weak());
     let mut changed = false;
     ui.horizontal_wrapped(|ui| {
         ui.label("tr(Ξ) after calibration");
