@@ -178,12 +178,20 @@ pub fn inspect(args: InspectArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!("sample {}", report.sample_token);
+        let format = dataset.format();
+        if let Some(rig) = format.rig() {
+            println!("  {rig}");
+        }
         for l in &report.lidars {
             let n = l.num_points.map_or("-".to_string(), |n| n.to_string());
             let t = l.extrinsic.translation;
+            let name = match mlod::dataset::LidarChannel::from_channel(&l.channel) {
+                Some(ch) if format.rig().is_some() => format!("{} ({})", l.channel, format.lidar_name(ch)),
+                _ => l.channel.clone(),
+            };
             println!(
-                "  {:<18} {:>7} points  t = ({:.3}, {:.3}, {:.3})  {}",
-                l.channel, n, t[0], t[1], t[2], l.file
+                "  {:<29} {:>7} points  t = ({:.3}, {:.3}, {:.3})  {}",
+                name, n, t[0], t[1], t[2], l.file
             );
         }
         for b in &report.boxes {

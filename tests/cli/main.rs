@@ -3,6 +3,7 @@
 
 use std::process::Command;
 
+mod av2;
 mod cluster;
 #[path = "../common/mod.rs"]
 mod common;

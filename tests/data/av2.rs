@@ -345,3 +345,38 @@ fn corrupted_sweeps_never_panic() {
     }
     assert!(decoded > 0, "a flipped byte in the data is still a file");
 }
+
+/// An AV2 sweep fused at α = 0.04 and exported as PLY and PCD reads back point for point: both
+/// LiDARs, their tr(Ξ), and down_lidar in LiDAR-Left's slot.
+#[test]
+fn an_exported_av2_sweep_reads_back() {
+    use mlod::export::{encode, read, ExportOptions, Format};
+    use mlod::pipeline::{fuse, FuseParams};
+    let ds = Dataset::open(av2_root()).unwrap();
+    let f = ds.frame(SWEEP).unwrap();
+    let params = FuseParams {
+        perturbation: mlod::uncertainty::Perturbation::new(0.04, 0).unwrap(),
+        ..Default::default()
+    };
+    let cloud = fuse(&f, &params).unwrap();
+    for format in [Format::Ply, Format::Pcd] {
+        let opts = ExportOptions {
+            format,
+            covariance: None,
+            comment: "av2 fixture",
+        };
+        let back = read(&encode(&cloud, &opts).unwrap()).unwrap();
+        assert_eq!(back.len(), 99_229);
+        assert_eq!(
+            (back.x.clone(), back.y.clone(), back.z.clone()),
+            (cloud.x.clone(), cloud.y.clone(), cloud.z.clone())
+        );
+        assert_eq!(back.trace, cloud.trace);
+        let down = back
+            .lidar
+            .iter()
+            .filter(|&&l| mlod::export::lidar_channel(l) == Some(LidarChannel::FrontLeft))
+            .count();
+        assert_eq!(down, 47_444);
+    }
+}
