@@ -259,28 +259,73 @@ pub fn print_eval(args: &EvalArgs, report: &mlod::eval::EvalReport) -> Result<()
             "\nTransfer check ({} within {} m; a match: BEV centre within {} m)",
             r.category, r.max_range, r.centre_dist
         );
+        let iv = |i: Option<mlod::eval::transfer::Interval>, digits: usize| {
+            i.map_or(String::new(), |i| {
+                format!("  [{:.*}, {:.*}]", digits, i.lo, digits, i.hi)
+            })
+        };
+        let ci = &t.intervals;
         println!(
-            "  found with score >= {}        {} of {} ({} %)",
+            "  found with score >= {}        {} of {} ({} %){}",
             r.min_score,
             t.found,
             t.boxes,
-            p(t.found_pct)
+            p(t.found_pct),
+            iv(ci.found_pct, 1)
         );
-        println!("  AP over centre matches (R40)  {}", p(t.ap_centre));
         println!(
-            "  confident false positives     {} in {} frames ({} per frame)",
+            "  AP over centre matches (R40)  {}{}",
+            p(t.ap_centre),
+            iv(ci.ap_centre, 1)
+        );
+        println!(
+            "  confident false positives     {} in {} frames ({} per frame){}",
             t.confident_false_positives,
             t.frames,
             t.confident_false_positives_per_frame
-                .map_or("-".to_string(), |v| format!("{v:.2}"))
+                .map_or("-".to_string(), |v| format!("{v:.2}")),
+            iv(ci.confident_false_positives_per_frame, 2)
         );
         println!(
-            "  found at 3D IoU >= {}         {} of {} ({} %)",
+            "  found at 3D IoU >= {}         {} of {} ({} %){}",
             r.iou,
             t.found_iou,
             t.boxes,
-            p(t.found_iou_pct)
+            p(t.found_iou_pct),
+            iv(ci.found_iou_pct, 1)
         );
+        println!(
+            "  [90 % bootstrap intervals, {} resamples: shares over cars, AP and false positives over frames]",
+            ci.resamples
+        );
+        println!(
+            "\n  {:<28} {:>7} {:>7} {:>5} {:>6} {:>7} {:>6}  found",
+            "frame", "range m", "points", "occl", "trunc", "best sc", "IoU"
+        );
+        let opt = |v: Option<String>| v.unwrap_or_else(|| "-".to_string());
+        for c in &t.cars {
+            let frame: String = c
+                .frame
+                .chars()
+                .rev()
+                .take(28)
+                .collect::<Vec<_>>()
+                .into_iter()
+                .rev()
+                .collect();
+            println!(
+                "  {:<28} {:>7.1} {:>7} {:>5} {:>6} {:>7} {:>6}  {}{}",
+                frame,
+                c.range_m,
+                opt(c.info.points.map(|n| n.to_string())),
+                opt(c.info.occlusion.map(|o| o.to_string())),
+                opt(c.info.truncation.map(|v| format!("{v:.2}"))),
+                opt(c.best_score.map(|v| format!("{v:.2}"))),
+                opt(c.best_iou.map(|v| format!("{v:.2}"))),
+                if c.found { "yes" } else { "no" },
+                if c.found_iou { ", IoU" } else { "" }
+            );
+        }
     }
     if let Some(att) = &report.attribution {
         println!(

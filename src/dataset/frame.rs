@@ -100,6 +100,11 @@ pub struct GtBox {
     pub rotation: UnitQuaternion<f64>,
     /// As in the table (`-1` in real Lyft data).
     pub num_lidar_pts: i64,
+    /// What the label says of how much of the object is hidden, where the format says it (KITTI:
+    /// 0 fully visible, 1 partly occluded, 2 largely occluded, 3 unknown).
+    pub occlusion: Option<u8>,
+    /// The share of the object outside the image, where the format says it (KITTI, 0–1).
+    pub truncation: Option<f32>,
 }
 
 impl GtBox {
@@ -483,6 +488,8 @@ impl Dataset {
                 ),
                 rotation,
                 num_lidar_pts: ann.num_lidar_pts,
+                occlusion: self.label_extras(&ann.token).and_then(|e| e.occlusion),
+                truncation: self.label_extras(&ann.token).and_then(|e| e.truncation),
             });
         }
 

@@ -145,6 +145,15 @@ impl DatasetFormat {
     }
 }
 
+/// What a label says of an object beyond its box, where the format says it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct LabelExtras {
+    /// KITTI: 0 fully visible, 1 partly occluded, 2 largely occluded, 3 unknown.
+    pub occlusion: Option<u8>,
+    /// KITTI: the share of the object outside the image (0–1).
+    pub truncation: Option<f32>,
+}
+
 /// A source category our names do not cover, with how many boxes carry it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct UnmappedCategory {
@@ -166,6 +175,9 @@ pub struct Dataset {
     issues: HashMap<String, FrameIssue>,
     /// Things the user should know about the dataset as a whole (which split was opened, …).
     notes: Vec<String>,
+    /// Per annotation token: what a format's labels say beyond the box (KITTI's occlusion and
+    /// truncation).
+    extras: HashMap<String, LabelExtras>,
     /// sample token → positions of its key-frame sample_data rows, in file order.
     keyframes_by_sample: HashMap<String, Vec<usize>>,
     /// sample token → positions of its sample_annotation rows, in file order.
@@ -230,6 +242,7 @@ impl Dataset {
         ds.regions = index.regions;
         ds.issues = index.issues;
         ds.notes = index.notes;
+        ds.extras = index.extras;
         Ok(ds)
     }
 
@@ -272,6 +285,7 @@ impl Dataset {
             regions: HashMap::new(),
             issues: HashMap::new(),
             notes: Vec::new(),
+            extras: HashMap::new(),
             keyframes_by_sample,
             annotations_by_sample,
             sample_order,
@@ -301,6 +315,11 @@ impl Dataset {
     /// Where evaluation looks in a sample, when the format restricts it (KITTI: camera 2's view).
     pub fn eval_region(&self, sample_token: &str) -> Option<&EvalRegion> {
         self.regions.get(sample_token)
+    }
+
+    /// What the labels say of an annotation beyond its box (KITTI's occlusion and truncation).
+    pub fn label_extras(&self, annotation_token: &str) -> Option<&LabelExtras> {
+        self.extras.get(annotation_token)
     }
 
     /// The problem that stops a sample loading, found while indexing (KITTI calib or labels).

@@ -365,6 +365,8 @@ pub fn find_layout(path: &Path) -> Option<KittiLayout> {
 /// stops it loading.
 pub struct KittiIndex {
     pub tables: Tables,
+    /// Per annotation token: the label's occlusion and truncation.
+    pub extras: HashMap<String, super::index::LabelExtras>,
     pub regions: HashMap<String, EvalRegion>,
     pub issues: HashMap<String, FrameIssue>,
     pub notes: Vec<String>,
@@ -420,6 +422,7 @@ pub fn open(layout: &KittiLayout) -> Result<KittiIndex, DatasetError> {
 
     let mut regions = HashMap::new();
     let mut issues = HashMap::new();
+    let mut extras = HashMap::new();
     let mut samples = Vec::with_capacity(frames.len());
     let mut sample_data = Vec::with_capacity(frames.len());
     let mut calibrated = Vec::with_capacity(frames.len());
@@ -540,6 +543,13 @@ pub fn open(layout: &KittiLayout) -> Result<KittiIndex, DatasetError> {
                 .clone();
             let ann_token = format!("{id}-{j}");
             let inst_token = format!("{id}-{j}-instance");
+            extras.insert(
+                ann_token.clone(),
+                super::index::LabelExtras {
+                    occlusion: u8::try_from(label.occluded).ok(),
+                    truncation: Some(label.truncated as f32),
+                },
+            );
             let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), b.yaw);
             annotations.push(SampleAnnotation {
                 token: ann_token.clone(),
@@ -619,6 +629,7 @@ pub fn open(layout: &KittiLayout) -> Result<KittiIndex, DatasetError> {
     };
     Ok(KittiIndex {
         tables,
+        extras,
         regions,
         issues,
         notes,

@@ -32,7 +32,7 @@ pub mod tables;
 pub use error::DatasetError;
 pub use frame::{pyquaternion_yaw, Frame, FrameInfo, GtBox, LidarInfo, LidarScan};
 pub use index::{
-    resolve_inside, train_validation_split, Dataset, DatasetFormat, LidarChannel, SampleSummary,
+    resolve_inside, train_validation_split, Dataset, DatasetFormat, LabelExtras, LidarChannel, SampleSummary,
     UnmappedCategory,
 };
 pub use inspect::{inspect, inspect_with, list, InspectBox, InspectExtrinsic, InspectLidar, InspectReport};

@@ -326,6 +326,8 @@ struct SampleTruth {
     base_to_global: Pose,
     gts: Vec<Detection>,
     gt_tokens: Vec<String>,
+    /// Per ground-truth box: what the transfer check's per-car table shows beyond the box.
+    gt_info: Vec<super::transfer::GtInfo>,
     lyft: Vec<LyftBox>,
     /// Where the format evaluates (KITTI: camera 2's view without DontCare regions); predictions
     /// outside it are neither true nor false positives.
@@ -338,7 +340,7 @@ impl SampleTruth {
     }
 }
 
-fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
+fn truth(dataset: &Dataset, token: &str, transfer: bool) -> Result<SampleTruth, DatasetError> {
     let mut info = dataset.frame_info(token)?;
     // Categories with no counterpart among ours (nuScenes barriers, KITTI Misc) are never scored.
     info.boxes
@@ -365,9 +367,43 @@ fn truth(dataset: &Dataset, token: &str) -> Result<SampleTruth, DatasetError> {
             })
         })
         .collect();
+    // The transfer check's table counts each box's points (every LiDAR, base frame, unperturbed).
+    let points: Option<Vec<usize>> = if transfer {
+        let frame = dataset.frame(token)?;
+        crate::pipeline::fuse(&frame, &crate::pipeline::FuseParams::default())
+            .ok()
+            .map(|c| {
+                info.boxes
+                    .iter()
+                    .map(|b| {
+                        c.x.iter()
+                            .zip(&c.y)
+                            .zip(&c.z)
+                            .filter(|((x, y), z)| {
+                                b.box3d
+                                    .contains([f64::from(**x), f64::from(**y), f64::from(**z)], 0.0)
+                            })
+                            .count()
+                    })
+                    .collect()
+            })
+    } else {
+        None
+    };
+    let gt_info = info
+        .boxes
+        .iter()
+        .enumerate()
+        .map(|(k, b)| super::transfer::GtInfo {
+            points: points.as_ref().and_then(|p| p.get(k).copied()),
+            occlusion: b.occlusion,
+            truncation: b.truncation,
+        })
+        .collect();
     Ok(SampleTruth {
         token: token.to_owned(),
         base_to_global,
+        gt_info,
         gts: info.boxes.iter().map(|b| b.as_detection()).collect(),
         gt_tokens: info.boxes.iter().map(|b| b.annotation_token.clone()).collect(),
         lyft,
@@ -410,7 +446,7 @@ fn truths(dataset: &Dataset, opts: &EvalOptions) -> Result<Vec<SampleTruth>, Eva
     }
     Ok(tokens
         .iter()
-        .map(|t| truth(dataset, t))
+        .map(|t| truth(dataset, t, opts.transfer.is_some()))
         .collect::<Result<Vec<_>, _>>()?)
 }
 
@@ -516,10 +552,16 @@ fn finish(
         })
         .collect();
     let kitti = kitti_ap(&samples, &opts.kitti);
-    let transfer = opts
-        .transfer
-        .as_ref()
-        .map(|rule| super::transfer::transfer_check(&samples, rule));
+    let transfer = opts.transfer.as_ref().map(|rule| {
+        let frames: Vec<super::transfer::TransferFrame> = truths
+            .iter()
+            .map(|s| super::transfer::TransferFrame {
+                token: s.token.clone(),
+                gts: s.gt_info.clone(),
+            })
+            .collect();
+        super::transfer::transfer_check_with(&samples, &frames, rule)
+    });
     let lyft_gt: Vec<LyftBox> = truths.iter().flat_map(|s| s.lyft.iter().cloned()).collect();
     let th = thresholds();
     let lyft = lyft_map(&lyft_gt, &lyft_preds, &th, Footprints::Devkit);
