@@ -93,6 +93,13 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // `mlod … | head` ends quietly, as other command-line tools do, instead of a panic on the
+    // closed pipe (Rust ignores SIGPIPE by default).
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of one signal before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
