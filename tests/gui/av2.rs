@@ -61,6 +61,17 @@ fn an_av2_sweep_opens_with_alpha_on_both_lidars_named_and_coloured_by_trace() {
         "AV2 has no LiDAR-Right to perturb"
     );
     h.snapshot("av2_alpha_0.04_trace");
+    // Input Fusion runs on the two LiDARs and finds cars on the real sweep.
+    h.get_by_label("Run (D)").click();
+    h.run_steps(3);
+    let (view, _) = h.state().detection().expect("Input Fusion ran");
+    assert_eq!(view.case, mlod::detect::Case::Input);
+    let cars = view
+        .detections
+        .iter()
+        .filter(|d| d.category == "car" && d.score >= 0.3)
+        .count();
+    assert!(cars >= 5, "{cars}");
 }
 
 #[test]

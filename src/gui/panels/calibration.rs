@@ -41,7 +41,13 @@ pub(super) fn calibration(p: &mut Panels<'_>, ui: &mut egui::Ui) {
             p.act(Action::CancelCalibration);
         }
     });
-    if has_aux {
+    // Three views only differ once something moved the auxiliary LiDARs (or ICP ran); at first
+    // sight the row would be noise (and push the panel past 800 px).
+    let moved = p.session.fuse.perturbation.alpha > 0.0
+        || !p.session.fuse.manual.is_empty()
+        || p.session.oc.calibration.is_some()
+        || p.session.oc.show_factory;
+    if has_aux && moved {
         view_selector(p, ui);
     }
     let Some(cal) = p.session.oc.calibration.clone() else {
