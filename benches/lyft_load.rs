@@ -296,6 +296,24 @@ fn bench(c: &mut Criterion) {
         b.iter(|| ds.frame(black_box(&sweep)).expect("frame"))
     });
     g.finish();
+    let path = av2.join("val/7fab2350-7eaf-3b7e-a39d-6937a4c1bede/sensors/lidar/315966265259836000.feather");
+    let mut g = c.benchmark_group("av2_frame");
+    g.bench_function("decode_feather", |b| {
+        b.iter(|| mlod::dataset::av2::feather::Feather::read(black_box(&path)).expect("decode"))
+    });
+    let sweep_file = mlod::dataset::av2::feather::Feather::read(&path).expect("decode");
+    let up = ds.frame(&sweep).expect("frame").primary.info.sensor_to_ego;
+    g.bench_function("split_up_lidar", |b| {
+        b.iter(|| {
+            mlod::dataset::av2::sweep::lidar_points(
+                black_box(&sweep_file),
+                mlod::dataset::LidarChannel::Top,
+                &up,
+            )
+            .expect("points")
+        })
+    });
+    g.finish();
     let mut g = c.benchmark_group("av2_log");
     g.sample_size(10);
     g.bench_function("open_log_11k_cuboids", |b| {

@@ -527,8 +527,24 @@ impl Dataset {
         let mut infos = Vec::with_capacity(1 + auxiliaries.len());
         infos.push(primary);
         infos.extend(auxiliaries);
-        let clouds: Vec<Result<PointCloud, DatasetError>> =
-            infos.par_iter().map(|l| l.load_points(opts)).collect();
+        // An Argoverse 2 sweep holds every LiDAR in one file: decode it once, split in one pass.
+        let av2 = infos.first().is_some_and(|first| {
+            infos
+                .iter()
+                .all(|l| l.layout == PointLayout::Av2Sweep && l.path == first.path)
+                && first.path.is_file()
+        });
+        let clouds: Vec<Result<PointCloud, DatasetError>> = match infos.first() {
+            Some(first) if av2 => {
+                let sweep = super::av2::feather::Feather::read(&first.path)?;
+                let lidars: Vec<_> = infos.iter().map(|l| (l.channel, l.sensor_to_ego)).collect();
+                super::av2::sweep::split(&sweep, &lidars)?
+                    .into_iter()
+                    .map(Ok)
+                    .collect()
+            }
+            _ => infos.par_iter().map(|l| l.load_points(opts)).collect(),
+        };
         let mut scans = Vec::with_capacity(infos.len());
         for (info, cloud) in infos.into_iter().zip(clouds) {
             let points = cloud?;

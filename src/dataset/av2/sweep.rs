@@ -12,8 +12,6 @@
 
 use std::path::Path;
 
-use nalgebra::Point3;
-
 use super::feather::Feather;
 use crate::dataset::error::DatasetError;
 use crate::dataset::index::LidarChannel;
@@ -41,12 +39,30 @@ pub fn lidar_points(
     channel: LidarChannel,
     sensor_to_ego: &Pose,
 ) -> Result<PointCloud, DatasetError> {
+    let mut clouds = split(sweep, &[(channel, *sensor_to_ego)])?;
+    Ok(clouds.pop().unwrap_or_default())
+}
+
+/// Every LiDAR of `lidars` from one decoded sweep in one pass over its rows (see
+/// [`lidar_points`]), in the order given.
+pub fn split(sweep: &Feather, lidars: &[(LidarChannel, Pose)]) -> Result<Vec<PointCloud>, DatasetError> {
     let path = sweep.path();
-    let first = first_laser(channel).ok_or_else(|| DatasetError::BadColumn {
-        path: path.to_path_buf(),
-        column: None,
-        message: format!("an Argoverse 2 sweep has no {channel} LiDAR"),
-    })?;
+    // Per LiDAR slot of the file (laser / 32): which output it goes to and its ego → sensor
+    // transform as an f32 3×4 matrix (the coordinates are float16: f32 loses nothing they hold).
+    let mut slots: [Option<(usize, [[f32; 4]; 3])>; 2] = [None; 2];
+    for (k, (channel, sensor_to_ego)) in lidars.iter().enumerate() {
+        let first = first_laser(*channel).ok_or_else(|| DatasetError::BadColumn {
+            path: path.to_path_buf(),
+            column: None,
+            message: format!("an Argoverse 2 sweep has no {channel} LiDAR"),
+        })?;
+        let h = sensor_to_ego.inverse().to_homogeneous();
+        let m =
+            std::array::from_fn(|r| std::array::from_fn(|c| h.get((r, c)).copied().unwrap_or(0.0) as f32));
+        if let Some(slot) = slots.get_mut(usize::from(first / LASERS_PER_LIDAR)) {
+            *slot = Some((k, m));
+        }
+    }
     let x = sweep.f32s("x")?;
     let y = sweep.f32s("y")?;
     let z = sweep.f32s("z")?;
@@ -62,30 +78,40 @@ pub fn lidar_points(
             ),
         });
     }
-    let ego_to_sensor = sensor_to_ego.inverse();
-    let n = laser
-        .iter()
-        .filter(|&&l| l / LASERS_PER_LIDAR == first / LASERS_PER_LIDAR)
-        .count();
-    let mut cloud = PointCloud::with_capacity(n);
-    for ((((&x, &y), &z), &i), &l) in x.iter().zip(&y).zip(&z).zip(&intensity).zip(&laser) {
-        if l / LASERS_PER_LIDAR != first / LASERS_PER_LIDAR {
-            continue;
+    let mut counts = [0usize; 2];
+    for &l in &laser {
+        if let Some(c) = counts.get_mut(usize::from(l / LASERS_PER_LIDAR)) {
+            *c += 1;
         }
+    }
+    let mut clouds: Vec<PointCloud> = lidars
+        .iter()
+        .map(|(channel, _)| {
+            let slot = first_laser(*channel).map_or(0, |f| usize::from(f / LASERS_PER_LIDAR));
+            PointCloud::with_capacity(counts.get(slot).copied().unwrap_or(0))
+        })
+        .collect();
+    for ((((&x, &y), &z), &i), &l) in x.iter().zip(&y).zip(&z).zip(&intensity).zip(&laser) {
+        let slot = l / LASERS_PER_LIDAR;
+        let Some(Some((k, m))) = slots.get(usize::from(slot)) else {
+            continue;
+        };
+        let Some(cloud) = clouds.get_mut(*k) else { continue };
         if !(x.is_finite() && y.is_finite() && z.is_finite()) {
             cloud.dropped += 1;
             continue;
         }
-        let p = ego_to_sensor * Point3::new(f64::from(x), f64::from(y), f64::from(z));
+        let [m0, m1, m2] = m;
+        let t = |r: &[f32; 4]| r[0] * x + r[1] * y + r[2] * z + r[3];
         cloud.push(
-            p.x as f32,
-            p.y as f32,
-            p.z as f32,
+            t(m0),
+            t(m1),
+            t(m2),
             f32::from(i),
-            f32::from(l - first),
+            f32::from(l - slot * LASERS_PER_LIDAR),
         );
     }
-    Ok(cloud)
+    Ok(clouds)
 }
 
 /// Reads a sweep file and returns one LiDAR's points (see [`lidar_points`]).
