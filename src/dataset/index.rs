@@ -20,7 +20,8 @@ use serde::Serialize;
 use super::av2;
 use super::categories;
 use super::error::DatasetError;
-use super::kitti::{self, EvalRegion, FrameIssue};
+use super::extras::{FrameIssue, LabelExtras};
+use super::kitti::{self, EvalRegion};
 use super::pointcloud::PointLayout;
 use super::tables::{Record, Tables};
 
@@ -143,15 +144,6 @@ impl DatasetFormat {
             _ => None,
         }
     }
-}
-
-/// What a label says of an object beyond its box, where the format says it.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
-pub struct LabelExtras {
-    /// KITTI: 0 fully visible, 1 partly occluded, 2 largely occluded, 3 unknown.
-    pub occlusion: Option<u8>,
-    /// KITTI: the share of the object outside the image (0–1).
-    pub truncation: Option<f32>,
 }
 
 /// A source category our names do not cover, with how many boxes carry it.

@@ -37,6 +37,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Matrix3x4, Matrix4, UnitQuaternion, Vector3, Vector4};
 
+pub use super::extras::FrameIssue;
 pub use super::region::{EvalRegion, RegionVerdict};
 
 use super::error::DatasetError;
@@ -277,37 +278,6 @@ pub fn parse_labels(text: &str, path: &Path) -> Result<Vec<KittiLabel>, DatasetE
     Ok(out)
 }
 
-/// A problem of one frame found while indexing; reported when that frame is loaded.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameIssue {
-    pub path: PathBuf,
-    pub line: usize,
-    pub message: String,
-}
-
-impl FrameIssue {
-    pub fn to_error(&self) -> DatasetError {
-        DatasetError::BadFile {
-            path: self.path.clone(),
-            line: self.line,
-            message: self.message.clone(),
-        }
-    }
-}
-
-impl From<DatasetError> for FrameIssue {
-    fn from(e: DatasetError) -> Self {
-        match e {
-            DatasetError::BadFile { path, line, message } => Self { path, line, message },
-            other => Self {
-                path: PathBuf::new(),
-                line: 0,
-                message: other.to_string(),
-            },
-        }
-    }
-}
-
 /// A KITTI split folder found on disk.
 #[derive(Debug, Clone, PartialEq)]
 pub struct KittiLayout {
@@ -366,7 +336,7 @@ pub fn find_layout(path: &Path) -> Option<KittiLayout> {
 pub struct KittiIndex {
     pub tables: Tables,
     /// Per annotation token: the label's occlusion and truncation.
-    pub extras: HashMap<String, super::index::LabelExtras>,
+    pub extras: HashMap<String, super::extras::LabelExtras>,
     pub regions: HashMap<String, EvalRegion>,
     pub issues: HashMap<String, FrameIssue>,
     pub notes: Vec<String>,
@@ -545,7 +515,7 @@ pub fn open(layout: &KittiLayout) -> Result<KittiIndex, DatasetError> {
             let inst_token = format!("{id}-{j}-instance");
             extras.insert(
                 ann_token.clone(),
-                super::index::LabelExtras {
+                super::extras::LabelExtras {
                     occlusion: u8::try_from(label.occluded).ok(),
                     truncation: Some(label.truncated as f32),
                 },

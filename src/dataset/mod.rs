@@ -20,6 +20,7 @@
 pub mod av2;
 pub mod categories;
 pub mod error;
+pub mod extras;
 pub mod frame;
 pub mod index;
 pub mod inspect;
@@ -30,9 +31,10 @@ pub mod stats;
 pub mod tables;
 
 pub use error::DatasetError;
+pub use extras::{FrameIssue, LabelExtras};
 pub use frame::{pyquaternion_yaw, Frame, FrameInfo, GtBox, LidarInfo, LidarScan};
 pub use index::{
-    resolve_inside, train_validation_split, Dataset, DatasetFormat, LabelExtras, LidarChannel, SampleSummary,
+    resolve_inside, train_validation_split, Dataset, DatasetFormat, LidarChannel, SampleSummary,
     UnmappedCategory,
 };
 pub use inspect::{inspect, inspect_with, list, InspectBox, InspectExtrinsic, InspectLidar, InspectReport};

@@ -38,7 +38,7 @@ use nalgebra::{Isometry3, Translation3, Vector3};
 
 use self::feather::Feather;
 use super::error::DatasetError;
-use super::kitti::FrameIssue;
+use super::extras::FrameIssue;
 use super::tables::{
     Attribute, CalibratedSensor, Category, EgoPose, Instance, Log, Map, Sample, SampleAnnotation, SampleData,
     Scene, Sensor, Table, Tables, Visibility,
