@@ -55,19 +55,10 @@ pub struct LidarInfo {
 }
 
 impl LidarInfo {
-    /// Reads this sweep's `.bin`. A missing file is [`DatasetError::MissingPointCloud`] naming the
+    /// Reads this sweep's file. A missing file is [`DatasetError::MissingPointCloud`] naming the
     /// path and the sample_data token.
-    pub fn load_points(&self, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
-        if self.layout == PointLayout::Av2Sweep {
-            if !self.path.is_file() {
-                return Err(DatasetError::MissingPointCloud {
-                    path: self.path.clone(),
-                    token: self.sample_data_token.clone(),
-                });
-            }
-            return super::av2::sweep::read_lidar(&self.path, self.channel, &self.sensor_to_ego);
-        }
-        let bytes = std::fs::read(&self.path).map_err(|source| {
+    fn read_file(&self) -> Result<Vec<u8>, DatasetError> {
+        std::fs::read(&self.path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
                 DatasetError::MissingPointCloud {
                     path: self.path.clone(),
@@ -79,8 +70,25 @@ impl LidarInfo {
                     source,
                 }
             }
-        })?;
-        parse_points(&bytes, &self.path, opts, self.layout)
+        })
+    }
+
+    /// Reads and decodes this sweep's Argoverse 2 feather file (every LiDAR of the sweep is in it).
+    fn read_av2_sweep(&self) -> Result<super::av2::feather::Feather, DatasetError> {
+        super::av2::feather::Feather::parse(self.read_file()?, &self.path)
+    }
+
+    /// Reads this sweep's points (`.bin`, or its LiDAR's part of an AV2 sweep). A missing file is
+    /// [`DatasetError::MissingPointCloud`] naming the path and the sample_data token.
+    pub fn load_points(&self, opts: LoadOptions) -> Result<PointCloud, DatasetError> {
+        if self.layout == PointLayout::Av2Sweep {
+            return super::av2::sweep::lidar_points(
+                &self.read_av2_sweep()?,
+                self.channel,
+                &self.sensor_to_ego,
+            );
+        }
+        parse_points(&self.read_file()?, &self.path, opts, self.layout)
     }
 }
 
@@ -528,22 +536,20 @@ impl Dataset {
         infos.push(primary);
         infos.extend(auxiliaries);
         // An Argoverse 2 sweep holds every LiDAR in one file: decode it once, split in one pass.
-        let av2 = infos.first().is_some_and(|first| {
+        let shared_sweep = infos.first().filter(|first| {
             infos
                 .iter()
                 .all(|l| l.layout == PointLayout::Av2Sweep && l.path == first.path)
-                && first.path.is_file()
         });
-        let clouds: Vec<Result<PointCloud, DatasetError>> = match infos.first() {
-            Some(first) if av2 => {
-                let sweep = super::av2::feather::Feather::read(&first.path)?;
+        let clouds: Vec<Result<PointCloud, DatasetError>> = match shared_sweep {
+            Some(first) => {
                 let lidars: Vec<_> = infos.iter().map(|l| (l.channel, l.sensor_to_ego)).collect();
-                super::av2::sweep::split(&sweep, &lidars)?
+                super::av2::sweep::split(&first.read_av2_sweep()?, &lidars)?
                     .into_iter()
                     .map(Ok)
                     .collect()
             }
-            _ => infos.par_iter().map(|l| l.load_points(opts)).collect(),
+            None => infos.par_iter().map(|l| l.load_points(opts)).collect(),
         };
         let mut scans = Vec::with_capacity(infos.len());
         for (info, cloud) in infos.into_iter().zip(clouds) {

@@ -375,16 +375,7 @@ fn truth(dataset: &Dataset, token: &str, transfer: bool) -> Result<SampleTruth, 
             .map(|c| {
                 info.boxes
                     .iter()
-                    .map(|b| {
-                        c.x.iter()
-                            .zip(&c.y)
-                            .zip(&c.z)
-                            .filter(|((x, y), z)| {
-                                b.box3d
-                                    .contains([f64::from(**x), f64::from(**y), f64::from(**z)], 0.0)
-                            })
-                            .count()
-                    })
+                    .map(|b| crate::pipeline::box_stats(&c, &b.box3d).points)
                     .collect()
             })
     } else {

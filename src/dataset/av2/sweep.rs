@@ -10,8 +10,6 @@
 
 #![deny(clippy::indexing_slicing)]
 
-use std::path::Path;
-
 use super::feather::Feather;
 use crate::dataset::error::DatasetError;
 use crate::dataset::index::LidarChannel;
@@ -112,13 +110,4 @@ pub fn split(sweep: &Feather, lidars: &[(LidarChannel, Pose)]) -> Result<Vec<Poi
         );
     }
     Ok(clouds)
-}
-
-/// Reads a sweep file and returns one LiDAR's points (see [`lidar_points`]).
-pub fn read_lidar(
-    path: &Path,
-    channel: LidarChannel,
-    sensor_to_ego: &Pose,
-) -> Result<PointCloud, DatasetError> {
-    lidar_points(&Feather::read(path)?, channel, sensor_to_ego)
 }
