@@ -12,10 +12,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow_array::{
-    Array, Float16Array, Float32Array, Float64Array, Int32Array, Int64Array, LargeStringArray, RecordBatch,
-    StringArray, UInt8Array,
-};
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float16Type, Float32Type, Float64Type, Int32Type, Int64Type, UInt8Type};
+use arrow_array::{Array, RecordBatch};
 use arrow_ipc::reader::FileReader;
 use arrow_schema::DataType;
 
@@ -125,73 +124,82 @@ impl Feather {
         bad(&self.path, Some(name), format!("expected {want}, found {got}"))
     }
 
-    /// A float64 column.
-    pub fn f64s(&self, name: &str) -> Result<Vec<f64>, DatasetError> {
+    /// A column over all batches: `take` appends a batch's array to the output and says whether
+    /// its type was one it reads; otherwise the column is of the wrong type (`want` names the
+    /// types read).
+    fn collect<T>(
+        &self,
+        name: &str,
+        want: &str,
+        take: impl Fn(&dyn Array, &mut Vec<T>) -> bool,
+    ) -> Result<Vec<T>, DatasetError> {
         let mut out = Vec::with_capacity(self.num_rows());
         for a in self.arrays(name)? {
-            match a.as_any().downcast_ref::<Float64Array>() {
-                Some(v) => out.extend_from_slice(v.values()),
-                None => return Err(self.wrong_type(name, "float64", a.data_type())),
+            if !take(a.as_ref(), &mut out) {
+                return Err(self.wrong_type(name, want, a.data_type()));
             }
         }
         Ok(out)
+    }
+
+    /// A float64 column.
+    pub fn f64s(&self, name: &str) -> Result<Vec<f64>, DatasetError> {
+        self.collect(name, "float64", |a, out| {
+            a.as_primitive_opt::<Float64Type>()
+                .map(|v| out.extend_from_slice(v.values()))
+                .is_some()
+        })
     }
 
     /// A float16 or float32 column as f32 (AV2 stores point coordinates as float16).
     pub fn f32s(&self, name: &str) -> Result<Vec<f32>, DatasetError> {
-        let mut out = Vec::with_capacity(self.num_rows());
-        for a in self.arrays(name)? {
-            if let Some(v) = a.as_any().downcast_ref::<Float16Array>() {
+        self.collect(name, "float16 or float32", |a, out| {
+            if let Some(v) = a.as_primitive_opt::<Float16Type>() {
                 out.extend(v.values().iter().map(|h| f16_bits_to_f32(h.to_bits())));
-            } else if let Some(v) = a.as_any().downcast_ref::<Float32Array>() {
+            } else if let Some(v) = a.as_primitive_opt::<Float32Type>() {
                 out.extend_from_slice(v.values());
             } else {
-                return Err(self.wrong_type(name, "float16 or float32", a.data_type()));
+                return false;
             }
-        }
-        Ok(out)
+            true
+        })
     }
 
     /// A uint8 column.
     pub fn u8s(&self, name: &str) -> Result<Vec<u8>, DatasetError> {
-        let mut out = Vec::with_capacity(self.num_rows());
-        for a in self.arrays(name)? {
-            match a.as_any().downcast_ref::<UInt8Array>() {
-                Some(v) => out.extend_from_slice(v.values()),
-                None => return Err(self.wrong_type(name, "uint8", a.data_type())),
-            }
-        }
-        Ok(out)
+        self.collect(name, "uint8", |a, out| {
+            a.as_primitive_opt::<UInt8Type>()
+                .map(|v| out.extend_from_slice(v.values()))
+                .is_some()
+        })
     }
 
     /// An int64 (or int32) column as i64.
     pub fn i64s(&self, name: &str) -> Result<Vec<i64>, DatasetError> {
-        let mut out = Vec::with_capacity(self.num_rows());
-        for a in self.arrays(name)? {
-            if let Some(v) = a.as_any().downcast_ref::<Int64Array>() {
+        self.collect(name, "int64", |a, out| {
+            if let Some(v) = a.as_primitive_opt::<Int64Type>() {
                 out.extend_from_slice(v.values());
-            } else if let Some(v) = a.as_any().downcast_ref::<Int32Array>() {
+            } else if let Some(v) = a.as_primitive_opt::<Int32Type>() {
                 out.extend(v.values().iter().map(|&x| i64::from(x)));
             } else {
-                return Err(self.wrong_type(name, "int64", a.data_type()));
+                return false;
             }
-        }
-        Ok(out)
+            true
+        })
     }
 
     /// A string column.
     pub fn strings(&self, name: &str) -> Result<Vec<String>, DatasetError> {
-        let mut out = Vec::with_capacity(self.num_rows());
-        for a in self.arrays(name)? {
-            if let Some(v) = a.as_any().downcast_ref::<StringArray>() {
+        self.collect(name, "string", |a, out| {
+            if let Some(v) = a.as_string_opt::<i32>() {
                 out.extend(v.iter().map(|s| s.unwrap_or_default().to_owned()));
-            } else if let Some(v) = a.as_any().downcast_ref::<LargeStringArray>() {
+            } else if let Some(v) = a.as_string_opt::<i64>() {
                 out.extend(v.iter().map(|s| s.unwrap_or_default().to_owned()));
             } else {
-                return Err(self.wrong_type(name, "string", a.data_type()));
+                return false;
             }
-        }
-        Ok(out)
+            true
+        })
     }
 
     /// Several float64 columns of equal length, row by row; a non-finite value is an error
