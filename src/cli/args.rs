@@ -85,6 +85,15 @@ pub fn portable_command(args: &[String], cwd: &std::path::Path) -> String {
         .join(" ")
 }
 
+/// A path as provenance names it: relative to `cwd` when absolute (see [`portable_command`]).
+pub fn portable_path(path: &std::path::Path, cwd: &std::path::Path) -> String {
+    if path.is_absolute() && cwd.is_absolute() {
+        relative_to(path, cwd).to_string_lossy().into_owned()
+    } else {
+        path.display().to_string()
+    }
+}
+
 /// `path` relative to `base` (both absolute), with `..` where it leaves `base`.
 fn relative_to(path: &std::path::Path, base: &std::path::Path) -> std::path::PathBuf {
     let p: Vec<_> = path.components().collect();

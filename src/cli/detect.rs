@@ -63,6 +63,26 @@ fn parse_intensity(s: &str) -> Result<f32, String> {
 }
 
 impl DetectorRun {
+    /// The detectors of `models` as their manifest decodes them, on the dataset's own extrinsics
+    /// (α = 0): what the trainers' validation runs.
+    pub fn of_models(
+        models: PathBuf,
+        vote_iou: Voting,
+        ground_gate: mlod::cases::ground_gate::GateChoice,
+    ) -> Self {
+        Self {
+            alpha: 0.0,
+            seed: 0,
+            models: Some(models),
+            vote_iou,
+            oc_prior: Default::default(),
+            drop_trace: mlod::cases::drop::DROP_TRACE,
+            set_intensity: None,
+            ground_gate,
+            external: Default::default(),
+        }
+    }
+
     /// `--set-intensity`: every LiDAR's intensities replaced.
     pub fn apply_intensity(&self, frame: &mut mlod::dataset::Frame) {
         if let Some(v) = self.set_intensity {

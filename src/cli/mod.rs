@@ -1,10 +1,12 @@
 //! The `mlod` subcommands, one file per subcommand or group; `main.rs` parses and dispatches.
 //! Every command takes its data from the library and only formats it (text, JSON, CSV, PNG).
 
+pub mod adapt;
 pub mod alignment;
 pub mod analyze;
 pub mod args;
 pub mod calibrate;
+pub mod chain;
 pub mod data;
 pub mod detect;
 pub mod eval;
@@ -117,7 +119,10 @@ Examples:
   mlod train stage1 --case top --dataset data/train --out M/top.safetensors --steps 4000 --seed 1
   mlod train stage1 --case top --dataset data/train --out M/top.safetensors --steps 4000 --seed 1 --resume
   mlod train calibrate-temperature --dataset data/train --models M
-  mlod train tune-vote --dataset data/train --models M";
+  mlod train tune-vote --dataset data/train --models M
+  mlod train chain --world walled --out models-new          the shipped recipe, data included (resumable)
+  mlod train chain --dataset data/v6w/train --world walled --out models-new
+  mlod train adapt --dataset ../shared/real-lidar/kitti --out models-kitti   your sensor's labelled frames";
 
 pub const DETECT_EXAMPLES: &str = "\
 Examples:

@@ -38,6 +38,14 @@ pub enum TrainCommand {
     /// Choose how the refiner's output is decoded (score rule, NMS after refinement) on the
     /// validation split and record it in the models' manifest.json.
     TuneRefiner(super::refine::TuneRefinerArgs),
+    /// Fine-tune a models folder on your sensor's labelled frames (LiDAR-Top; the fusion cases
+    /// too on a rig) into a new, complete models folder; resumable; open it with `--models` or
+    /// the window's File > Open models folder.
+    Adapt(super::adapt::AdaptArgs),
+    /// The whole chain of a models folder in one resumable command: the five stage-1 cases,
+    /// temperatures, voting, the gate, proposals, both refiners, their decoding and the training
+    /// data's statistics (rerun the same command after a kill).
+    Chain(super::chain::ChainArgs),
 }
 
 #[derive(clap::Args)]
@@ -159,6 +167,8 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
         TrainCommand::Proposals(a) => super::refine::proposals(a),
         TrainCommand::Refiner(a) => super::refine::refiner(a, command_line()),
         TrainCommand::TuneRefiner(a) => super::refine::tune_refiner(a, command_line()),
+        TrainCommand::Adapt(a) => super::adapt::adapt_cmd(a),
+        TrainCommand::Chain(a) => super::chain::chain(a),
         TrainCommand::Stage1(a) => {
             let mut cfg = TrainConfig::new(a.case, a.dataset, a.out);
             cfg.steps = a.steps;
@@ -384,17 +394,7 @@ fn validation_ap(
     ground_gate: GateChoice,
     label: &str,
 ) -> Result<std::collections::BTreeMap<String, f64>> {
-    let run = DetectorRun {
-        alpha: 0.0,
-        seed: 0,
-        models: Some(models.to_path_buf()),
-        vote_iou,
-        oc_prior: Default::default(),
-        drop_trace: mlod::cases::drop::DROP_TRACE,
-        set_intensity: None,
-        ground_gate,
-        external: Default::default(),
-    };
+    let run = DetectorRun::of_models(models.to_path_buf(), vote_iou, ground_gate);
     let mut per_case = std::collections::BTreeMap::new();
     for &case in cases {
         let dets = super::eval::detect_case(dataset, tokens, &run, case, &FuseParams::default())?;

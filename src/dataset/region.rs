@@ -68,6 +68,21 @@ impl EvalRegion {
         RegionVerdict::Inside
     }
 
+    /// Whether a point (base frame) lies where the labels speak: in front of the camera, inside
+    /// the image's columns and outside every `DontCare` region. Rows are not checked, so a point
+    /// below or above the image (the road just ahead, a box's top) still counts. Training uses
+    /// it so that anchors the labels say nothing about teach neither "car" nor "background".
+    pub fn labels_point(&self, p: [f64; 3]) -> bool {
+        let Some((u, v)) = self.project(p) else {
+            return false;
+        };
+        (0.0..self.width).contains(&u)
+            && !self
+                .dont_care
+                .iter()
+                .any(|r| (r[0]..=r[2]).contains(&u) && (r[1]..=r[3]).contains(&v))
+    }
+
     /// True when `b` counts in evaluation.
     pub fn contains(&self, b: &Box3d) -> bool {
         self.verdict(b) == RegionVerdict::Inside

@@ -244,6 +244,48 @@ pub struct Manifest {
     /// stage-1 cases drop boxes floating more than this above the ground; absent: no gate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ground_gate: Option<GateTuning>,
+    /// Present when the folder was adapted to real data (`mlod train adapt`): from which folder,
+    /// on which data, with which command, and the figures it reached.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adapted: Option<AdaptRecord>,
+    /// Present when the folder was made by `mlod train chain`: its command and each phase's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chain: Option<ChainRecord>,
+}
+
+/// The command that trained a whole models folder (`mlod train chain`) and its phases.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ChainRecord {
+    pub command: String,
+    pub phases: Vec<ChainPhase>,
+}
+
+/// One phase of a chain: the command it ran (as a user would type it alone) and its wall time.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ChainPhase {
+    pub name: String,
+    pub command: String,
+    pub wall_time_s: f64,
+}
+
+/// How a models folder was adapted to a user's labelled frames (`mlod train adapt`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct AdaptRecord {
+    /// The models folder it started from, as given.
+    pub base: String,
+    /// sha256 of the base folder's manifest.json, which holds every base weight's sha256.
+    pub base_manifest_sha256: String,
+    /// The labelled real data, as given, and how many of its samples taught.
+    pub dataset: String,
+    pub samples: usize,
+    /// The adapted cases (the others are the base folder's, unchanged).
+    pub cases: Vec<Case>,
+    pub steps: u64,
+    pub command: String,
+    /// Per case and model (`base`, `adapted`): figures of `mlod eval --transfer` on the
+    /// adaptation frames themselves. They say the run learned; they are not a held-out check.
+    #[serde(default)]
+    pub fit: BTreeMap<String, BTreeMap<String, f64>>,
 }
 
 /// The largest ground gate a user or a manifest may give (m).

@@ -38,9 +38,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::region::EvalRegion;
 pub use crate::dataset::train_validation_split as split;
 use crate::dataset::{Dataset, Frame};
-use crate::detect::anchors::{assign, raw_box, RawBox, Targets};
+use crate::detect::anchors::{assign, raw_box, Anchors, RawBox, Targets};
 use crate::detect::model::{branch_points, ModelConfig, Stage1Model};
 use crate::detect::net::{cross_entropy_rows, sigmoid_focal_loss, smooth_l1};
 use crate::detect::voxel::{voxelize, Bev, PointsRef};
@@ -92,6 +93,14 @@ impl Augmentation {
             s * x + c * y + self.translation[1],
             z + self.translation[2],
         ]
+    }
+
+    /// Where a point of the augmented frame was before [`Augmentation::apply`].
+    pub fn undo(&self, p: [f32; 3]) -> [f32; 3] {
+        let (x, y) = (p[0] - self.translation[0], p[1] - self.translation[1]);
+        let (s, c) = self.yaw.sin_cos();
+        let (x, y) = (c * x + s * y, -s * x + c * y);
+        [x, if self.flip_y { -y } else { y }, p[2] - self.translation[2]]
     }
 
     /// Moves points and boxes together.
@@ -185,13 +194,62 @@ pub fn prepare_sample_with(
         }
     }
     let bevs = parts.iter().map(|p| p.map(|p| voxelize(&cfg.grid, p))).collect();
-    let targets = assign(&model.anchors, &cfg.anchor, &gts, &dont_care);
+    let mut targets = assign(&model.anchors, &cfg.anchor, &gts, &dont_care);
+    if let Some(region) = &frame.eval_region {
+        ignore_unlabelled(&mut targets, &model.anchors, region, aug, transfer);
+    }
     Ok(PreparedSample {
         bevs,
         targets,
         num_gt: gts.len(),
         num_dont_care: dont_care.len(),
     })
+}
+
+/// Only annotated regions teach: a negative anchor whose centre, moved back through the
+/// augmentation, lies where the frame's labels say nothing (KITTI: outside camera 2's columns or
+/// in a `DontCare` region, [`EvalRegion::labels_point`]) is ignored, so an unlabelled car there
+/// does not teach "background". Positives (labelled or pasted cars) keep their weight. The
+/// transfer augmentation's tilt (at most 1.5°) is not undone: it moves a centre by centimetres.
+pub(crate) fn ignore_unlabelled(
+    targets: &mut Targets,
+    anchors: &Anchors,
+    region: &EvalRegion,
+    aug: Option<&Augmentation>,
+    transfer: Option<&TransferAug>,
+) {
+    let scale = transfer.map_or(1.0, |t| t.global_scale);
+    let scale = if scale.is_finite() && scale > 0.0 {
+        scale
+    } else {
+        1.0
+    };
+    let n = targets
+        .labels
+        .len()
+        .min(targets.cls_weights.len())
+        .min(anchors.boxes.len());
+    let mut seen: Option<([f32; 2], bool)> = None;
+    for i in 0..n {
+        if targets.labels[i] > 0.0 || targets.cls_weights[i] == 0.0 {
+            continue;
+        }
+        let a = &anchors.boxes[i];
+        // The rotations of one cell share a centre: test it once.
+        let labelled = match seen {
+            Some((c, v)) if c == [a[0], a[1]] => v,
+            _ => {
+                let p = aug.map_or([a[0], a[1], a[2]], |g| g.undo([a[0], a[1], a[2]]));
+                let p = [p[0] / scale, p[1] / scale, p[2] / scale].map(f64::from);
+                let v = region.labels_point(p);
+                seen = Some(([a[0], a[1]], v));
+                v
+            }
+        };
+        if !labelled {
+            targets.cls_weights[i] = 0.0;
+        }
+    }
 }
 
 /// The loss terms of one step.
@@ -318,6 +376,10 @@ pub struct TrainConfig {
     /// The model's input leaves intensity out ([`crate::detect::voxel::GridConfig::intensity`]).
     #[serde(default)]
     pub no_intensity: bool,
+    /// Train on every sample, the validation scenes included (adaptation to a few labelled
+    /// frames, [`crate::train::adapt`]).
+    #[serde(default)]
+    pub all_samples: bool,
 }
 
 impl TrainConfig {
@@ -345,6 +407,7 @@ impl TrainConfig {
             slow_autograd: false,
             transfer_aug: false,
             no_intensity: false,
+            all_samples: false,
         }
     }
 
@@ -528,7 +591,10 @@ pub fn train_stage1(
         )));
     }
     let dataset = Dataset::open(&cfg.dataset)?;
-    let (mut train, _) = split(&dataset);
+    let mut train = match cfg.all_samples {
+        true => dataset.samples().into_iter().map(|s| s.sample_token).collect(),
+        false => split(&dataset).0,
+    };
     if cfg.max_samples > 0 {
         train.truncate(cfg.max_samples);
     }

@@ -4,6 +4,7 @@
 use std::process::Command;
 
 mod av2;
+mod chain;
 mod cluster;
 #[path = "../common/mod.rs"]
 mod common;

@@ -113,3 +113,82 @@ mod training {
         );
     }
 }
+
+mod labelled_region {
+    use nalgebra::Matrix3x4;
+
+    use crate::dataset::region::EvalRegion;
+    use crate::detect::anchors::{Anchors, Targets};
+    use crate::detect::model::ModelConfig;
+    use crate::detect::Case;
+    use crate::train::stage1::*;
+
+    /// A camera at the sensor looking along +x (1200 × 360 pixels, focal 500).
+    fn camera() -> EvalRegion {
+        // Camera axes: right = −y, down = −z, forward = x.
+        let projection = Matrix3x4::new(
+            600.0, -500.0, 0.0, 0.0, //
+            180.0, 0.0, -500.0, 0.0, //
+            1.0, 0.0, 0.0, 0.0,
+        );
+        EvalRegion {
+            projection,
+            width: 1200.0,
+            height: 360.0,
+            dont_care: vec![[0.0, 0.0, 300.0, 360.0]],
+        }
+    }
+
+    fn weights_at(aug: Option<&Augmentation>, points: &[[f32; 2]]) -> Vec<f32> {
+        let cfg = ModelConfig::new(Case::Top);
+        let anchors = Anchors::new(&cfg.grid, &cfg.anchor);
+        let n = anchors.len();
+        let mut t = Targets {
+            labels: vec![0.0; n],
+            cls_weights: vec![1.0; n],
+            positives: Vec::new(),
+            reg: Vec::new(),
+            dir: Vec::new(),
+        };
+        // One positive behind the camera: it keeps its weight.
+        let behind = nearest(&anchors, [-20.0, 0.0]);
+        t.labels[behind] = 1.0;
+        ignore_unlabelled(&mut t, &anchors, &camera(), aug, None);
+        assert_eq!(t.cls_weights[behind], 1.0, "a positive is never ignored");
+        points
+            .iter()
+            .map(|&p| t.cls_weights[nearest(&anchors, p)])
+            .collect()
+    }
+
+    fn nearest(anchors: &Anchors, p: [f32; 2]) -> usize {
+        let d = |i: usize| (anchors.boxes[i][0] - p[0]).hypot(anchors.boxes[i][1] - p[1]);
+        (0..anchors.len())
+            .min_by(|&a, &b| d(a).total_cmp(&d(b)))
+            .unwrap_or(0)
+    }
+
+    #[test]
+    fn only_the_labelled_view_teaches_background() {
+        // Ahead: taught. Behind, far to the side, or in the DontCare columns (u ≤ 300, to the
+        // camera's left, i.e. +y): ignored.
+        let w = weights_at(None, &[[20.0, 0.0], [-20.0, 1.0], [5.0, -30.0], [20.0, 15.0]]);
+        assert_eq!(w, vec![1.0, 0.0, 0.0, 0.0]);
+        // Rotated by 180° in augmentation: what lies behind now was ahead, and is taught.
+        let turned = Augmentation {
+            flip_y: false,
+            yaw: std::f32::consts::PI,
+            translation: [0.0; 3],
+        };
+        let w = weights_at(Some(&turned), &[[-20.0, 1.0], [20.0, 0.0]]);
+        assert_eq!(w, vec![1.0, 0.0]);
+        // Mirrored: the DontCare side swaps.
+        let flipped = Augmentation {
+            flip_y: true,
+            yaw: 0.0,
+            translation: [0.0; 3],
+        };
+        let w = weights_at(Some(&flipped), &[[20.0, -15.0], [20.0, 15.0]]);
+        assert_eq!(w, vec![0.0, 1.0]);
+    }
+}
