@@ -395,6 +395,20 @@ impl Manifest {
         Ok(())
     }
 
+    /// One line naming an adapted folder (`mlod train adapt`): which cases, on which data, from
+    /// which folder; `None` for a folder trained on simulated data alone.
+    pub fn adapted_summary(&self) -> Option<String> {
+        let a = self.adapted.as_ref()?;
+        let cases: Vec<&str> = a.cases.iter().map(|c| c.as_str()).collect();
+        Some(format!(
+            "adapted to {} ({} labelled frames; {}) from {}",
+            a.dataset,
+            a.samples,
+            cases.join(", "),
+            a.base
+        ))
+    }
+
     /// The entry of a case, or an error naming the manifest.
     pub fn entry(&self, dir: &Path, case: Case) -> Result<&ModelEntry, DetectError> {
         self.models.get(&case).ok_or_else(|| DetectError::Manifest {

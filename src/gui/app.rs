@@ -28,7 +28,7 @@ use super::state::{camera_from_pose, pose_from_camera};
 use super::state::{Loaded, Shell, Toast};
 use crate::color::ColorMode;
 use crate::dataset::{Frame, LidarChannel};
-use crate::detect::weights::default_models_dir;
+use crate::detect::weights::{default_models_dir, Manifest};
 use crate::detect::Case;
 use crate::pipeline::{fuse, BoxStats, FusedCloud};
 use crate::render::{Camera, SceneHandle, View, Viewport};
@@ -204,6 +204,9 @@ impl MlodApp {
         };
         app.loaded.ground_gate_m = crate::cases::ground_gate::manifest_gate(&app.models_dir);
         app.loaded.models = app.models_dir.clone();
+        app.loaded.models_adapted = Manifest::load(&app.models_dir)
+            .ok()
+            .and_then(|m| m.adapted_summary());
         let path = app.session.dataset.clone();
         app.open_dataset(path);
         app.case_from_data = auto_color;

@@ -352,6 +352,8 @@ pub struct Loaded {
     pub ground_gate_m: Option<f32>,
     /// The models folder the detectors run from (named in the Detection panel).
     pub models: PathBuf,
+    /// What its manifest says of an adaptation to real data (`mlod train adapt`), if any.
+    pub models_adapted: Option<String>,
 }
 
 /// The details panel's content for the selected box.

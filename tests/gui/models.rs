@@ -93,3 +93,26 @@ fn a_models_folder_that_does_not_load_leaves_the_window_as_it_was() {
     assert_eq!(h.state().models_dir(), assets_models().as_path());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn an_adapted_folder_is_named_as_such() {
+    // The shipped weights with the record `mlod train adapt` writes.
+    let dir = crate::common::shipped_without("gui-adapted", &[]);
+    let path = dir.join("manifest.json");
+    let mut m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    m["adapted"] = serde_json::json!({
+        "base": "assets/models", "base_manifest_sha256": "0", "dataset": "my-kitti",
+        "samples": 10, "cases": ["top"], "steps": 1500, "command": "mlod train adapt"
+    });
+    std::fs::write(&path, serde_json::to_string(&m).unwrap()).unwrap();
+    let (mut h, _) = harness_full(kitti_fixture(), None, None);
+    assert!(h.query_by_label_contains("(adapted)").is_none());
+    h.state_mut().open_models(dir.clone(), 0.0);
+    h.run_steps(2);
+    assert!(h.query_by_label_contains("(adapted)").is_some());
+    let toasts = h.state().toast_texts().join("\n");
+    assert!(
+        toasts.contains("adapted to my-kitti (10 labelled frames; top) from assets/models"),
+        "{toasts}"
+    );
+}

@@ -25,12 +25,18 @@ impl MlodApp {
         self.session.models = Some(dir.clone());
         self.loaded.models = dir.clone();
         self.loaded.ground_gate_m = manifest.ground_gate_m();
+        self.loaded.models_adapted = manifest.adapted_summary();
         if let Some(ds) = self.loaded.dataset.clone() {
             self.loaded.depth_notes.clear();
             self.jobs
                 .depth_notes(self.session.dataset.clone(), ds, dir.clone());
         }
-        self.toast(now, format!("detectors from {}", dir.display()), false);
+        let adapted = self
+            .loaded
+            .models_adapted
+            .as_deref()
+            .map_or(String::new(), |a| format!(", {a}"));
+        self.toast(now, format!("detectors from {}{adapted}", dir.display()), false);
         self.reload_detectors();
     }
 

@@ -269,11 +269,16 @@ fn compare_lines(p: &Panels<'_>, ui: &mut egui::Ui, a: DetectionCounts) {
 fn models_label(p: &Panels<'_>, ui: &mut egui::Ui) {
     let dir = &p.loaded.models;
     let shown = dir.strip_prefix(env!("CARGO_MANIFEST_DIR")).unwrap_or(dir);
-    ui.label(RichText::new(format!("models: {}", shown.display())).weak())
-        .on_hover_text(format!(
-            "{}\nFile > Open models folder… runs the detectors from another folder",
-            dir.display()
-        ));
+    let adapted = p.loaded.models_adapted.as_deref();
+    let name = match adapted {
+        Some(_) => format!("models: {} (adapted)", shown.display()),
+        None => format!("models: {}", shown.display()),
+    };
+    ui.label(RichText::new(name).weak()).on_hover_text(format!(
+        "{}{}\nFile > Open models folder… runs the detectors from another folder",
+        dir.display(),
+        adapted.map_or(String::new(), |a| format!("\n{a}"))
+    ));
 }
 
 /// The models folder's ground gate, switchable (beside "run again on every change").
