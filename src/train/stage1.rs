@@ -385,6 +385,11 @@ pub struct TrainConfig {
     /// split instead (the ground-truth database stays the main dataset's).
     #[serde(default)]
     pub mix: Option<MixConfig>,
+    /// Beam randomisation (LiDAR Distillation, Wei et al. 2022): with probability 0.5 a step
+    /// keeps every other ring of each LiDAR (the odd or the even ones), a sensor with half the
+    /// beams. Points of unknown ring (< 0) stay.
+    #[serde(default)]
+    pub beam_drop: bool,
 }
 
 /// Another dataset whose frames a training run mixes in ([`TrainConfig::mix`]).
@@ -422,6 +427,7 @@ impl TrainConfig {
             no_intensity: false,
             all_samples: false,
             mix: None,
+            beam_drop: false,
         }
     }
 
@@ -487,6 +493,21 @@ fn sample_objects(
     let existing = frame.boxes.iter().filter(|b| b.category == category).count();
     let mut rng = stream_rng(cfg.seed, (1u64 << 33) + step);
     database.sample(&mut rng, existing, &occupied, cfg.gt_sample)
+}
+
+/// Keeps the points whose ring has `parity` (and those of unknown ring, < 0).
+fn keep_every_other_ring(cloud: &mut crate::dataset::pointcloud::PointCloud, parity: u32) {
+    let keep: Vec<bool> = cloud
+        .ring
+        .iter()
+        .map(|&r| r < 0.0 || !r.is_finite() || (r as u32) % 2 == parity)
+        .collect();
+    let mut k = keep.iter();
+    cloud.x.retain(|_| *k.next().unwrap_or(&true));
+    for v in [&mut cloud.y, &mut cloud.z, &mut cloud.intensity, &mut cloud.ring] {
+        let mut k = keep.iter();
+        v.retain(|_| *k.next().unwrap_or(&true));
+    }
 }
 
 /// The outcome of a training run.
@@ -691,6 +712,14 @@ pub fn train_stage1(
             }
             _ => dataset.frame(token)?,
         };
+        let mut frame = frame;
+        let mut beam_rng = stream_rng(cfg.seed, (1u64 << 37) + step);
+        if cfg.beam_drop && beam_rng.random_bool(0.5) {
+            let parity = beam_rng.random_range(0..2u32);
+            for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
+                keep_every_other_ring(&mut scan.points, parity);
+            }
+        }
         let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
         let transfer = cfg
