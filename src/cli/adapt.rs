@@ -43,12 +43,6 @@ pub struct AdaptArgs {
     /// Cars pasted into each frame from the frames' own labelled cars (0: off).
     #[arg(long, default_value_t = 15)]
     gt_sample: usize,
-    /// Mix frames of this labelled dataset (e.g. simulated scenes, `mlod synth`) into the steps.
-    #[arg(long)]
-    mix: Option<PathBuf>,
-    /// Share of the steps that take a frame of --mix, in [0, 1).
-    #[arg(long, default_value_t = 0.5, requires = "mix")]
-    mix_share: f64,
     /// Skip the before/after check on the adaptation frames.
     #[arg(long)]
     no_fit_check: bool,
@@ -62,10 +56,6 @@ pub fn adapt_cmd(a: AdaptArgs) -> Result<()> {
     cfg.seed = a.seed;
     cfg.lr = a.lr;
     cfg.gt_sample = a.gt_sample;
-    cfg.mix = a.mix.clone().map(|dataset| mlod::train::stage1::MixConfig {
-        dataset,
-        share: a.mix_share,
-    });
     cfg.command = command_line();
     let cwd = std::env::current_dir().unwrap_or_default();
     cfg.base_name = portable_path(&base, &cwd);

@@ -41,8 +41,6 @@ pub struct AdaptConfig {
     pub lr: f64,
     /// Ground-truth sampling: boxes per frame pasted from the frames' own cars (0: off).
     pub gt_sample: usize,
-    /// Simulated (or any other labelled) frames mixed into the steps, and their share.
-    pub mix: Option<crate::train::stage1::MixConfig>,
     /// The command line, and the base folder and dataset as the manifest names them (the
     /// paths as given by default; the command line makes them relative to where it ran).
     pub command: String,
@@ -63,7 +61,6 @@ impl AdaptConfig {
             seed: 0,
             lr: 5e-4,
             gt_sample: 15,
-            mix: None,
             command: String::new(),
         }
     }
@@ -186,7 +183,6 @@ pub fn adapt(
         t.transfer_aug = true;
         t.no_intensity = !base_config.grid.intensity;
         t.all_samples = true;
-        t.mix = cfg.mix.clone();
         t.checkpoint_every_s = 30.0;
         t.resume = t.checkpoint.is_file();
         t.command = cfg.command.clone();

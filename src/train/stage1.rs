@@ -380,24 +380,11 @@ pub struct TrainConfig {
     /// frames, [`crate::train::adapt`]).
     #[serde(default)]
     pub all_samples: bool,
-    /// Batches that mix another dataset's frames in (adaptation: simulated frames beside the few
-    /// real ones): each step, with probability `share`, takes a frame of `dataset`'s training
-    /// split instead (the ground-truth database stays the main dataset's).
-    #[serde(default)]
-    pub mix: Option<MixConfig>,
     /// Beam randomisation (LiDAR Distillation, Wei et al. 2022): with probability 0.5 a step
     /// keeps every other ring of each LiDAR (the odd or the even ones), a sensor with half the
     /// beams. Points of unknown ring (< 0) stay.
     #[serde(default)]
     pub beam_drop: bool,
-}
-
-/// Another dataset whose frames a training run mixes in ([`TrainConfig::mix`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MixConfig {
-    pub dataset: PathBuf,
-    /// Share of the steps, in [0, 1).
-    pub share: f64,
 }
 
 impl TrainConfig {
@@ -426,7 +413,6 @@ impl TrainConfig {
             transfer_aug: false,
             no_intensity: false,
             all_samples: false,
-            mix: None,
             beam_drop: false,
         }
     }
@@ -639,26 +625,6 @@ pub fn train_stage1(
             cfg.dataset.display()
         )));
     }
-    let mix = match &cfg.mix {
-        None => None,
-        Some(m) => {
-            if !(m.share.is_finite() && (0.0..1.0).contains(&m.share)) {
-                return Err(DetectError::BadParameter(format!(
-                    "the mixed share must be in [0, 1), got {}",
-                    m.share
-                )));
-            }
-            let other = Dataset::open(&m.dataset)?;
-            let tokens = split(&other).0;
-            if tokens.is_empty() {
-                return Err(DetectError::BadParameter(format!(
-                    "{}: no training samples to mix in",
-                    m.dataset.display()
-                )));
-            }
-            Some((other, tokens, m.share))
-        }
-    };
     let mut config = ModelConfig::new(cfg.case);
     config.grid.intensity = !cfg.no_intensity;
     let model = Stage1Model::new_trainable(config, cfg.seed)?;
@@ -703,16 +669,7 @@ pub fn train_stage1(
         let mut rng = stream_rng(cfg.seed, (1u64 << 32) + step);
         let aug = Augmentation::draw(&mut rng);
         let t0 = Instant::now();
-        // A mixed-in frame: drawn from its own stream, so runs without a mix are unchanged.
-        let mut mix_rng = stream_rng(cfg.seed, (1u64 << 36) + step);
-        let frame = match &mix {
-            Some((other, tokens, share)) if mix_rng.random::<f64>() < *share => {
-                let k = mix_rng.random_range(0..tokens.len());
-                other.frame(&tokens[k])?
-            }
-            _ => dataset.frame(token)?,
-        };
-        let mut frame = frame;
+        let mut frame = dataset.frame(token)?;
         let mut beam_rng = stream_rng(cfg.seed, (1u64 << 37) + step);
         if cfg.beam_drop && beam_rng.random_bool(0.5) {
             let parity = beam_rng.random_range(0..2u32);
