@@ -302,16 +302,25 @@ pub fn chain(a: ChainArgs) -> Result<()> {
         None => fresh,
         Some(old) => {
             // A resumed run must be the same chain: same phases, same commands.
-            for (new, was) in fresh.phases.iter().zip(&old.phases) {
-                if new.command != was.command || fresh.phases.len() != old.phases.len() {
-                    bail!(
-                        "{} holds another chain (phase {}: `{}`, now `{}`): give another --out or the same options",
-                        state_path.display(),
-                        was.name,
-                        was.command,
-                        new.command
-                    );
-                }
+            let differs = fresh.phases.len() != old.phases.len()
+                || fresh
+                    .phases
+                    .iter()
+                    .zip(&old.phases)
+                    .any(|(n, w)| n.command != w.command);
+            if differs {
+                let (was, now) = fresh
+                    .phases
+                    .iter()
+                    .zip(&old.phases)
+                    .find(|(n, w)| n.command != w.command)
+                    .map_or(("(other phases)".to_string(), String::new()), |(n, w)| {
+                        (format!("{}: `{}`", w.name, w.command), n.command.clone())
+                    });
+                bail!(
+                    "{} holds another chain (phase {was}, now `{now}`): give another --out or the same options",
+                    state_path.display()
+                );
             }
             old
         }
