@@ -128,6 +128,10 @@ pub fn adapt(
     if cfg.steps == 0 || cfg.steps > 1_000_000 {
         return Err(bad(format!("--steps must be in 1..=1000000, got {}", cfg.steps)));
     }
+    // Checked before anything is written (the trainer checks again).
+    if !(cfg.lr.is_finite() && cfg.lr > 0.0 && cfg.lr < 1.0) {
+        return Err(bad(format!("--lr must be in (0, 1), got {}", cfg.lr)));
+    }
     let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
         (Ok(a), Ok(b)) => a == b,
         _ => false,

@@ -257,5 +257,16 @@ fn adapt_refuses_its_base_folder_and_unlabelled_data() {
         .expect("run");
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("no sample has a labelled box"));
+    // An absurd learning rate is refused before anything is written.
+    let o = Command::new(MLOD)
+        .args(["train", "adapt", "--lr", "nan", "--dataset"])
+        .arg(&kitti)
+        .arg("--out")
+        .arg(d.join("nan"))
+        .output()
+        .expect("run");
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--lr must be in (0, 1)"));
+    assert!(!d.join("nan").exists(), "a refused run wrote a folder");
     let _ = std::fs::remove_dir_all(&d);
 }
