@@ -270,3 +270,36 @@ fn adapt_refuses_its_base_folder_and_unlabelled_data() {
     assert!(!d.join("nan").exists(), "a refused run wrote a folder");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn on_a_rig_the_fusion_cases_adapt_too() {
+    let d = scratch("adapt-rig");
+    let out = d.join("adapted");
+    run(&strings(&[
+        "train",
+        "adapt",
+        "--dataset",
+        "tests/fixtures/av2",
+        "--out",
+        out.to_str().expect("utf-8"),
+        "--steps",
+        "2",
+        "--no-fit-check",
+    ]));
+    let m = manifest(&out);
+    assert_eq!(
+        m["adapted"]["cases"],
+        serde_json::json!(["top", "input", "feature"])
+    );
+    let base = manifest(&root().join("assets").join("models"));
+    for case in ["top", "input", "feature"] {
+        assert_ne!(
+            m["models"][case]["sha256"], base["models"][case]["sha256"],
+            "{case}"
+        );
+    }
+    for case in ["left", "right"] {
+        assert_eq!(m["models"][case], base["models"][case], "{case}");
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
