@@ -50,10 +50,7 @@ pub fn run(dataset: &Dataset, tokens: &[String], args: &Request, config: &IcpCon
             let cal = calibrate(&frame, &FuseParams::default(), config, OcPrior::Icp)
                 .with_context(|| format!("calibrating sample {token} from its calibration"))?;
             for l in &cal.lidars {
-                let nominal = frame
-                    .lidar(l.channel)
-                    .map(|s| s.info.extrinsic)
-                    .context("calibrated LiDAR missing from its frame")?;
+                let nominal = super::calibrate::nominal(&frame, l.channel)?;
                 alignments.push(Alignment {
                     sample_token: token.clone(),
                     channel: l.channel.as_str().to_owned(),
