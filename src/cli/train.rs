@@ -133,10 +133,6 @@ pub struct Stage1Args {
     /// random point density (src/train/transfer_aug.rs).
     #[arg(long)]
     transfer_aug: bool,
-    /// Beam randomisation: half the steps keep every other ring of each LiDAR (a sensor with
-    /// half the beams; LiDAR Distillation).
-    #[arg(long)]
-    beam_drop: bool,
     /// Leave intensity out of the input (its BEV channel stays zero): for data whose intensity
     /// is not real (real Lyft files hold 100 everywhere) or differs between sensors.
     #[arg(long)]
@@ -190,7 +186,6 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             cfg.slow_autograd = a.slow_autograd;
             cfg.transfer_aug = a.transfer_aug;
             cfg.no_intensity = a.no_intensity;
-            cfg.beam_drop = a.beam_drop;
             // candle runs its element-wise ops on a spinning thread pool of its own beside rayon's
             // (which gemm uses); on 2 busy cores the two pools fight and the spinning took ~40% of
             // a step (docs/stage1.md, "A training step's profile"). One candle thread unless the

@@ -380,11 +380,6 @@ pub struct TrainConfig {
     /// frames, [`crate::train::adapt`]).
     #[serde(default)]
     pub all_samples: bool,
-    /// Beam randomisation (LiDAR Distillation, Wei et al. 2022): with probability 0.5 a step
-    /// keeps every other ring of each LiDAR (the odd or the even ones), a sensor with half the
-    /// beams. Points of unknown ring (< 0) stay.
-    #[serde(default)]
-    pub beam_drop: bool,
 }
 
 impl TrainConfig {
@@ -413,7 +408,6 @@ impl TrainConfig {
             transfer_aug: false,
             no_intensity: false,
             all_samples: false,
-            beam_drop: false,
         }
     }
 
@@ -479,21 +473,6 @@ fn sample_objects(
     let existing = frame.boxes.iter().filter(|b| b.category == category).count();
     let mut rng = stream_rng(cfg.seed, (1u64 << 33) + step);
     database.sample(&mut rng, existing, &occupied, cfg.gt_sample)
-}
-
-/// Keeps the points whose ring has `parity` (and those of unknown ring, < 0).
-fn keep_every_other_ring(cloud: &mut crate::dataset::pointcloud::PointCloud, parity: u32) {
-    let keep: Vec<bool> = cloud
-        .ring
-        .iter()
-        .map(|&r| r < 0.0 || !r.is_finite() || (r as u32) % 2 == parity)
-        .collect();
-    let mut k = keep.iter();
-    cloud.x.retain(|_| *k.next().unwrap_or(&true));
-    for v in [&mut cloud.y, &mut cloud.z, &mut cloud.intensity, &mut cloud.ring] {
-        let mut k = keep.iter();
-        v.retain(|_| *k.next().unwrap_or(&true));
-    }
 }
 
 /// The outcome of a training run.
@@ -669,14 +648,7 @@ pub fn train_stage1(
         let mut rng = stream_rng(cfg.seed, (1u64 << 32) + step);
         let aug = Augmentation::draw(&mut rng);
         let t0 = Instant::now();
-        let mut frame = dataset.frame(token)?;
-        let mut beam_rng = stream_rng(cfg.seed, (1u64 << 37) + step);
-        if cfg.beam_drop && beam_rng.random_bool(0.5) {
-            let parity = beam_rng.random_range(0..2u32);
-            for scan in std::iter::once(&mut frame.primary).chain(frame.auxiliaries.iter_mut()) {
-                keep_every_other_ring(&mut scan.points, parity);
-            }
-        }
+        let frame = dataset.frame(token)?;
         let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
         let transfer = cfg

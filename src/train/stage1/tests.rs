@@ -192,25 +192,3 @@ mod labelled_region {
         assert_eq!(w, vec![0.0, 1.0]);
     }
 }
-
-mod beams {
-    use crate::dataset::pointcloud::PointCloud;
-
-    #[test]
-    fn every_other_ring_stays_with_its_columns_and_unknown_rings_stay() {
-        let mut c = PointCloud {
-            x: vec![0.0, 1.0, 2.0, 3.0, 4.0],
-            y: vec![10.0, 11.0, 12.0, 13.0, 14.0],
-            z: vec![20.0, 21.0, 22.0, 23.0, 24.0],
-            intensity: vec![30.0, 31.0, 32.0, 33.0, 34.0],
-            ring: vec![0.0, 1.0, 2.0, -1.0, 5.0],
-            ..Default::default()
-        };
-        super::super::keep_every_other_ring(&mut c, 1);
-        assert_eq!(c.x, vec![1.0, 3.0, 4.0]);
-        assert_eq!(c.y, vec![11.0, 13.0, 14.0]);
-        assert_eq!(c.z, vec![21.0, 23.0, 24.0]);
-        assert_eq!(c.intensity, vec![31.0, 33.0, 34.0]);
-        assert_eq!(c.ring, vec![1.0, -1.0, 5.0]);
-    }
-}
