@@ -50,7 +50,7 @@ pub fn run(dataset: &Dataset, tokens: &[String], args: &Request, config: &IcpCon
             let cal = calibrate(&frame, &FuseParams::default(), config, OcPrior::Icp)
                 .with_context(|| format!("calibrating sample {token} from its calibration"))?;
             for l in &cal.lidars {
-                let nominal = super::calibrate::nominal(&frame, l.channel)?;
+                let nominal = nominal(&frame, l.channel)?;
                 alignments.push(Alignment {
                     sample_token: token.clone(),
                     channel: l.channel.as_str().to_owned(),
@@ -121,4 +121,16 @@ pub fn run(dataset: &Dataset, tokens: &[String], args: &Request, config: &IcpCon
         );
     }
     Ok(())
+}
+
+/// The dataset's extrinsic of a LiDAR that calibrate returned (the nominal, what ICP is compared
+/// with).
+pub fn nominal(
+    frame: &mlod::dataset::Frame,
+    channel: mlod::dataset::LidarChannel,
+) -> Result<mlod::geometry::Pose> {
+    frame
+        .lidar(channel)
+        .map(|s| s.info.extrinsic)
+        .context("calibrated LiDAR missing from its frame")
 }

@@ -253,7 +253,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             let cal = calibrate(&frame, &params, &config, OcPrior::Icp)
                 .with_context(|| format!("calibrating sample {token} from its calibration"))?;
             for l in &cal.lidars {
-                let truth = nominal(&frame, l.channel)?;
+                let truth = super::alignment::nominal(&frame, l.channel)?;
                 fixed.insert(l.channel, l.extrinsic);
                 fixed_points.push(FixedPoint {
                     sample_token: token.clone(),
@@ -281,7 +281,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
                 dump(dir, &frame, &params, &cal, &config)?;
             }
             for l in &cal.lidars {
-                let truth = nominal(&frame, l.channel)?;
+                let truth = super::alignment::nominal(&frame, l.channel)?;
                 let s = l.std();
                 runs.push(Run {
                     sample_token: token.clone(),
@@ -507,16 +507,4 @@ fn dump(
         serde_json::to_string_pretty(&meta)?.as_bytes(),
     )?;
     Ok(())
-}
-
-/// The dataset's extrinsic of a LiDAR that calibrate returned (the nominal, what ICP is compared
-/// with).
-pub fn nominal(
-    frame: &mlod::dataset::Frame,
-    channel: mlod::dataset::LidarChannel,
-) -> Result<mlod::geometry::Pose> {
-    frame
-        .lidar(channel)
-        .map(|s| s.info.extrinsic)
-        .context("calibrated LiDAR missing from its frame")
 }
