@@ -3,7 +3,7 @@
 //! and after, recorded in the new folder's manifest.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -104,10 +104,18 @@ pub fn adapt_cmd(a: AdaptArgs) -> Result<()> {
     if a.no_fit_check {
         return Ok(());
     }
+    let dataset = super::open_dataset(&a.dataset)?;
+    let opts = mlod::eval::EvalOptions {
+        transfer: Some(mlod::eval::TransferRule::default()),
+        ..Default::default()
+    };
+    let tokens = super::eval::evaluated_tokens(&dataset, &a.dataset, &opts)?;
     let mut fit = BTreeMap::new();
     for (case, _) in &done {
         for (name, models) in [("base", &base), ("adapted", &a.out)] {
-            let f = transfer_figures(&a.dataset, models, *case)?;
+            let run = DetectorRun::of_models(models.clone(), Voting::Manifest, GateChoice::Manifest);
+            let report = super::eval::run_case(&dataset, &tokens, &run, *case, &Default::default(), &opts)?;
+            let f = transfer_figures(report.transfer);
             println!(
                 "{case} {name:>7} on the adaptation frames: {} ({:.0} found of {:.0}), AP {}, {} confident FP/frame",
                 pct(f.get("found_pct")),
@@ -131,18 +139,10 @@ fn pct(v: Option<&f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.1} %"))
 }
 
-/// `mlod eval --transfer`'s figures for one case of a models folder on a whole dataset.
-pub fn transfer_figures(dataset_path: &Path, models: &Path, case: Case) -> Result<BTreeMap<String, f64>> {
-    let dataset = super::open_dataset(dataset_path)?;
-    let opts = mlod::eval::EvalOptions {
-        transfer: Some(mlod::eval::TransferRule::default()),
-        ..Default::default()
-    };
-    let tokens = super::eval::evaluated_tokens(&dataset, dataset_path, &opts)?;
-    let run = DetectorRun::of_models(models.to_path_buf(), Voting::Manifest, GateChoice::Manifest);
-    let report = super::eval::run_case(&dataset, &tokens, &run, case, &Default::default(), &opts)?;
+/// The transfer check's figures by name (those it could compute).
+fn transfer_figures(t: Option<mlod::eval::transfer::TransferReport>) -> BTreeMap<String, f64> {
     let mut f = BTreeMap::new();
-    if let Some(t) = report.transfer {
+    if let Some(t) = t {
         f.insert("frames".into(), t.frames as f64);
         f.insert("boxes".into(), t.boxes as f64);
         f.insert("found".into(), t.found as f64);
@@ -161,5 +161,5 @@ pub fn transfer_figures(dataset_path: &Path, models: &Path, case: Case) -> Resul
             }
         }
     }
-    Ok(f)
+    f
 }

@@ -65,11 +65,12 @@ pub struct ChainArgs {
     stats_samples: u64,
 }
 
-/// One phase: its name, its command's words after `mlod`, and the words a resumed run adds.
+/// One phase: its name, its command's words after `mlod`, and the checkpoint whose presence
+/// makes a rerun add `--resume`.
 struct Phase {
     name: String,
     words: Vec<String>,
-    resume: Vec<String>,
+    checkpoint: Option<PathBuf>,
     /// The folder a killed run leaves half written and the phase starts afresh (simulated data).
     scratch: Option<PathBuf>,
 }
@@ -106,7 +107,7 @@ fn phases(a: &ChainArgs, data: &Path) -> Vec<Phase> {
     let phase = |name: &str, words: Vec<String>| Phase {
         name: name.to_string(),
         words,
-        resume: Vec::new(),
+        checkpoint: None,
         scratch: None,
     };
     if let (None, Some(world)) = (&a.dataset, &a.world) {
@@ -161,7 +162,7 @@ fn phases(a: &ChainArgs, data: &Path) -> Vec<Phase> {
             w.extend(words(&["--init", &s(&init.join(format!("{case}.safetensors")))]));
         }
         let mut p = phase(case, w);
-        p.resume = words(&["--resume"]);
+        p.checkpoint = Some(ckpt);
         list.push(p);
     }
     let models = |sub: &str| words(&["train", sub, "--dataset", &d, "--models", &m]);
@@ -183,7 +184,8 @@ fn phases(a: &ChainArgs, data: &Path) -> Vec<Phase> {
             "--proposals",
             &s(&out.join("proposals")),
         ]);
-        w.extend(words(&["--out", &s(&out.join(format!("{name}.safetensors")))]));
+        let weights = out.join(format!("{name}.safetensors"));
+        w.extend(words(&["--out", &s(&weights)]));
         w.extend(words(&[
             "--steps",
             &a.refiner_steps.to_string(),
@@ -194,7 +196,7 @@ fn phases(a: &ChainArgs, data: &Path) -> Vec<Phase> {
         ]));
         w.extend(extra.map(String::from));
         let mut p = phase(name, w);
-        p.resume = words(&["--resume"]);
+        p.checkpoint = Some(weights.with_extension("ckpt.safetensors"));
         list.push(p);
     }
     list.push(phase("tune-refiner", val(models("tune-refiner"))));
@@ -334,20 +336,9 @@ pub fn chain(a: ChainArgs) -> Result<()> {
             continue;
         }
         let mut words = p.words.clone();
-        let resumed = p.resume.first().is_some_and(|_| {
-            let ckpt = words
-                .iter()
-                .position(|w| w == "--checkpoint")
-                .and_then(|i| words.get(i + 1))
-                .map(PathBuf::from)
-                .or_else(|| {
-                    let o = words.iter().position(|w| w == "--out")?;
-                    Some(PathBuf::from(words.get(o + 1)?).with_extension("ckpt.safetensors"))
-                });
-            ckpt.is_some_and(|c| c.is_file())
-        });
+        let resumed = p.checkpoint.as_ref().is_some_and(|c| c.is_file());
         if resumed {
-            words.extend(p.resume.iter().cloned());
+            words.push("--resume".to_string());
         }
         if let Some(dir) = &p.scratch {
             if dir.exists() {

@@ -58,6 +58,22 @@ fn kill_when(args: &[String], ready: impl Fn() -> bool) {
     child.wait().expect("reap");
 }
 
+/// Runs `mlod train adapt --dataset DATASET --out OUT` with `extra` first; it must fail, and
+/// its stderr is returned.
+fn adapt_refused(extra: &[&str], dataset: &Path, out: &Path) -> String {
+    let o = Command::new(MLOD)
+        .args(["train", "adapt"])
+        .args(extra)
+        .arg("--dataset")
+        .arg(dataset)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("run");
+    assert!(!o.status.success(), "mlod train adapt {extra:?} succeeded");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
 fn manifest(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("manifest.json")).expect("manifest");
     serde_json::from_str(&text).expect("manifest JSON")
@@ -226,15 +242,7 @@ fn a_killed_adaptation_resumes_to_a_complete_models_folder() {
 fn adapt_refuses_its_base_folder_and_unlabelled_data() {
     let base = root().join("assets").join("models");
     let kitti = root().join("tests").join("fixtures").join("kitti");
-    let o = Command::new(MLOD)
-        .args(["train", "adapt", "--dataset"])
-        .arg(&kitti)
-        .arg("--out")
-        .arg(&base)
-        .output()
-        .expect("run");
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("is the base models folder"));
+    assert!(adapt_refused(&[], &kitti, &base).contains("is the base models folder"));
     // A KITTI folder whose labels hold no box teaches nothing.
     let d = scratch("unlabelled");
     for sub in ["velodyne", "calib", "label_2"] {
@@ -248,25 +256,9 @@ fn adapt_refuses_its_base_folder_and_unlabelled_data() {
     .expect("copy");
     std::fs::copy(k.join("calib/000000.txt"), d.join("training/calib/000000.txt")).expect("copy");
     std::fs::write(d.join("training/label_2/000000.txt"), "").expect("write");
-    let o = Command::new(MLOD)
-        .args(["train", "adapt", "--dataset"])
-        .arg(&d)
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .expect("run");
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no sample has a labelled box"));
+    assert!(adapt_refused(&[], &d, &d.join("out")).contains("no sample has a labelled box"));
     // An absurd learning rate is refused before anything is written.
-    let o = Command::new(MLOD)
-        .args(["train", "adapt", "--lr", "nan", "--dataset"])
-        .arg(&kitti)
-        .arg("--out")
-        .arg(d.join("nan"))
-        .output()
-        .expect("run");
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--lr must be in (0, 1)"));
+    assert!(adapt_refused(&["--lr", "nan"], &kitti, &d.join("nan")).contains("--lr must be in (0, 1)"));
     assert!(!d.join("nan").exists(), "a refused run wrote a folder");
     let _ = std::fs::remove_dir_all(&d);
 }
