@@ -85,6 +85,34 @@ fn bench(c: &mut Criterion) {
     });
 }
 
+/// What the Python package's `Dataset.fuse` does per call on the largest sample of sample_data/:
+/// load the frame from disk, fuse it with tr(Ξ) (python/bench/fuse_bench.py times the same from
+/// Python).
+fn bench_sample_fuse(c: &mut Criterion) {
+    let dataset =
+        mlod::dataset::Dataset::open(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_data"))
+            .unwrap();
+    let size = |t: &str| {
+        let f = dataset.frame(t).unwrap();
+        f.lidars().map(|l| l.points.x.len()).sum::<usize>()
+    };
+    let token = mlod::dataset::list(&dataset)
+        .into_iter()
+        .map(|s| s.sample_token)
+        .max_by_key(|t| size(t))
+        .unwrap();
+    let params = FuseParams {
+        perturbation: Perturbation::new(0.1, 7).unwrap(),
+        ..Default::default()
+    };
+    c.bench_function("sample_data_frame_and_fuse", |b| {
+        b.iter(|| {
+            let frame = dataset.frame(black_box(&token)).unwrap();
+            black_box(fuse(&frame, &params).unwrap())
+        })
+    });
+}
+
 fn bench_icp(c: &mut Criterion) {
     use mlod::calib::{align, voxel_downsample, IcpConfig, Target};
     let ds = mlod::dataset::Dataset::open(concat!(env!("CARGO_MANIFEST_DIR"), "/sample_data")).unwrap();
@@ -177,5 +205,5 @@ fn bench_render(c: &mut Criterion) {
 #[cfg(not(feature = "gui"))]
 fn bench_render(_: &mut Criterion) {}
 
-criterion_group!(benches, bench, bench_icp, bench_render);
+criterion_group!(benches, bench, bench_sample_fuse, bench_icp, bench_render);
 criterion_main!(benches);

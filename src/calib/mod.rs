@@ -19,6 +19,7 @@
 //! the prior Θ(α) (`pipeline::fuse`).
 
 pub mod icp;
+pub mod report;
 
 use std::fmt;
 use std::str::FromStr;

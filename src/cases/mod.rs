@@ -8,6 +8,7 @@ pub mod drop;
 pub mod ground_gate;
 pub mod mlod;
 pub mod oc;
+pub mod run;
 pub mod union;
 
 use std::path::Path;

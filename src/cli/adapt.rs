@@ -114,7 +114,7 @@ pub fn adapt_cmd(a: AdaptArgs) -> Result<()> {
     for (case, _) in &done {
         for (name, models) in [("base", &base), ("adapted", &a.out)] {
             let run = DetectorRun::of_models(models.clone(), Voting::Manifest, GateChoice::Manifest);
-            let report = super::eval::run_case(&dataset, &tokens, &run, *case, &Default::default(), &opts)?;
+            let report = super::eval::run_case(&dataset, &tokens, &run, *case, &opts)?;
             let f = transfer_figures(report.transfer);
             println!(
                 "{case} {name:>7} on the adaptation frames: {} ({:.0} found of {:.0}), AP {}, {} confident FP/frame",

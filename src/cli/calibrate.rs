@@ -7,12 +7,11 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use nalgebra::{Matrix6, Vector6};
 use serde::Serialize;
 
-use mlod::calib::{IcpConfig, LidarCalibration, OcPrior, PoseError};
+use mlod::calib::report::{CalibrationRun, Estimate};
+use mlod::calib::{IcpConfig, OcPrior, PoseError};
 use mlod::dataset::{Dataset, Frame};
-use mlod::geometry::log;
 use mlod::pipeline::{calibrate, FuseParams};
 use mlod::uncertainty::Perturbation;
 
@@ -73,59 +72,6 @@ pub struct CalibrateArgs {
     /// Open3D reference (`tests/open3d/icp_reference.py`).
     #[arg(long)]
     pub dump: Option<PathBuf>,
-}
-
-/// An extrinsic as `mlod calibrate --json` prints it.
-#[derive(Serialize, Clone, Copy)]
-struct Estimate {
-    /// [w, x, y, z]
-    rotation: [f64; 4],
-    /// [x, y, z] (m)
-    translation: [f64; 3],
-}
-
-impl From<&mlod::geometry::Pose> for Estimate {
-    fn from(p: &mlod::geometry::Pose) -> Self {
-        let q = p.rotation;
-        let t = p.translation.vector;
-        Self {
-            rotation: [q.w, q.i, q.j, q.k],
-            translation: [t.x, t.y, t.z],
-        }
-    }
-}
-
-#[derive(Serialize)]
-struct Run {
-    sample_token: String,
-    channel: String,
-    /// The perturbation's seed of this run.
-    seed: u64,
-    /// The estimated extrinsic of this LiDAR in the base frame.
-    estimate: Estimate,
-    /// With `--draws`: the distance of the estimate to ICP's fixed point (the run started from
-    /// the dataset's calibration).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    to_fixed_point: Option<PoseError>,
-    error_before: PoseError,
-    error_after: PoseError,
-    converged: bool,
-    degenerate: Vec<String>,
-    fitness: f64,
-    rmse: f64,
-    iterations: usize,
-    correspondences: usize,
-    /// Eigenvalues of the normal matrix per unit weight, ascending (degenerate below the
-    /// threshold `IcpConfig::degeneracy`).
-    eigenvalues: [f64; 6],
-    /// Estimated (ρ, φ) covariance, m and rad, 6×6.
-    covariance: [[f64; 6]; 6],
-    /// Standard deviations from it: tx, ty, tz (m), roll, pitch, yaw (deg).
-    std: [f64; 6],
-    /// The true error's squared Mahalanobis distance under `covariance` (≈ 6 on average for an
-    /// honest covariance).
-    mahalanobis2: f64,
-    ms: f64,
 }
 
 #[derive(Serialize, Default)]
@@ -189,20 +135,6 @@ fn quantiles(mut v: Vec<f64>) -> Quantiles {
         p90: at(0.9),
         p95: at(0.95),
         worst: v[v.len() - 1],
-    }
-}
-
-/// The true error (ρ, φ) = (t − t̂, log(R R̂ᵀ)) against the estimate's covariance.
-fn mahalanobis2(l: &LidarCalibration, truth: &mlod::geometry::Pose) -> f64 {
-    let rho = truth.translation.vector - l.extrinsic.translation.vector;
-    let rt = truth.rotation.to_rotation_matrix().into_inner();
-    let re = l.extrinsic.rotation.to_rotation_matrix().into_inner();
-    let phi = log(&(rt * re.transpose()));
-    let e = Vector6::new(rho.x, rho.y, rho.z, phi.x, phi.y, phi.z);
-    let cov = Matrix6::from_fn(|i, j| l.covariance[i][j]);
-    match cov.pseudo_inverse(1e-18) {
-        Ok(inv) => e.dot(&(inv * e)),
-        Err(_) => f64::NAN,
     }
 }
 
@@ -282,38 +214,12 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             }
             for l in &cal.lidars {
                 let truth = super::alignment::nominal(&frame, l.channel)?;
-                let s = l.std();
-                runs.push(Run {
-                    sample_token: token.clone(),
-                    channel: l.channel.as_str().to_string(),
-                    seed,
-                    estimate: Estimate::from(&l.extrinsic),
-                    to_fixed_point: fixed.get(&l.channel).map(|f| PoseError::between(&l.extrinsic, f)),
-                    error_before: l.error_before(&truth),
-                    error_after: l.error(&truth),
-                    converged: l.converged,
-                    degenerate: l.degenerate_axes(),
-                    fitness: l.fitness,
-                    rmse: l.rmse,
-                    iterations: l.iterations,
-                    correspondences: l.correspondences,
-                    eigenvalues: l.eigenvalues,
-                    covariance: l.covariance,
-                    std: [
-                        s[0],
-                        s[1],
-                        s[2],
-                        s[3].to_degrees(),
-                        s[4].to_degrees(),
-                        s[5].to_degrees(),
-                    ],
-                    mahalanobis2: mahalanobis2(l, &truth),
-                    ms: l.ms,
-                });
+                let fixed_point = fixed.get(&l.channel);
+                runs.push(CalibrationRun::new(token, seed, l, &truth, fixed_point));
             }
         }
     }
-    let flagged = |r: &Run| !r.converged || !r.degenerate.is_empty();
+    let flagged = |r: &CalibrationRun| !r.converged || !r.degenerate.is_empty();
     let mut maha: Vec<f64> = runs
         .iter()
         .map(|r| r.mahalanobis2)

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 
+use mlod::cases::run::{detections_json, RunOptions};
 use mlod::detect::model::Voting;
-use mlod::detect::weights::default_models_dir;
-use mlod::detect::{Case, Detection};
+use mlod::detect::Case;
 use mlod::pipeline::FuseParams;
 
 use super::args::{parse_alpha, sample_token};
@@ -83,41 +83,40 @@ impl DetectorRun {
         }
     }
 
-    /// `--set-intensity`: every LiDAR's intensities replaced.
-    pub fn apply_intensity(&self, frame: &mut mlod::dataset::Frame) {
-        if let Some(v) = self.set_intensity {
-            frame.set_intensity(v);
+    /// The library's run options these flags say (the Python package builds the same).
+    pub fn options(&self) -> RunOptions {
+        RunOptions {
+            alpha: self.alpha,
+            seed: self.seed,
+            models: self.models.clone(),
+            vote_iou: self.vote_iou,
+            oc_prior: self.oc_prior,
+            drop_trace: self.drop_trace,
+            set_intensity: self.set_intensity,
+            ground_gate: self.ground_gate,
         }
     }
-    /// The detector of `case` from the models folder, with the decoding asked for.
+
+    /// `--set-intensity`: every LiDAR's intensities replaced.
+    pub fn apply_intensity(&self, frame: &mut mlod::dataset::Frame) {
+        self.options().apply_intensity(frame);
+    }
+
+    /// The detector of `case` from the models folder, with the decoding asked for (external
+    /// detectors defined first).
     pub fn load(&self, case: Case) -> Result<Box<dyn mlod::detect::Detector>> {
         self.external.define_for(&[case])?;
-        let detector = mlod::cases::load_detector_oc(
-            &self.models_dir(),
-            case,
-            self.vote_iou,
-            &mlod::calib::IcpConfig::default(),
-            self.oc_prior,
-            self.drop_trace,
-        )?;
-        Ok(mlod::cases::ground_gate::gated(
-            detector,
-            self.ground_gate,
-            &self.models_dir(),
-        )?)
+        Ok(self.options().load(case)?)
     }
 
     /// The models folder asked for, or the shipped one.
     pub fn models_dir(&self) -> PathBuf {
-        self.models.clone().unwrap_or_else(default_models_dir)
+        self.options().models_dir()
     }
 
     /// Fuse parameters with the perturbation asked for.
     pub fn fuse_params(&self) -> Result<FuseParams> {
-        Ok(FuseParams {
-            perturbation: mlod::uncertainty::Perturbation::new(self.alpha, self.seed)?,
-            ..Default::default()
-        })
+        Ok(self.options().fuse_params()?)
     }
 }
 
@@ -167,7 +166,7 @@ pub fn detect(a: DetectArgs) -> Result<()> {
             if a.json {
                 println!(
                     "{}",
-                    serde_json::to_string_pretty(&base_json(&token, a.case, &dets))?
+                    serde_json::to_string_pretty(&detections_json(&token, a.case, &dets))?
                 );
             } else {
                 println!(
@@ -203,19 +202,4 @@ pub fn detect(a: DetectArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-fn base_json(token: &str, case: Case, dets: &[Detection]) -> serde_json::Value {
-    serde_json::json!({
-        "sample_token": token,
-        "case": case,
-        "frame": "base (LIDAR_TOP)",
-        "detections": dets.iter().map(|d| serde_json::json!({
-            "center": d.box3d.center,
-            "size_lwh": d.box3d.size_lwh,
-            "yaw": d.box3d.yaw,
-            "score": d.score,
-            "category": d.category,
-        })).collect::<Vec<_>>(),
-    })
 }

@@ -82,45 +82,24 @@ pub fn evaluated_tokens(
     Ok(tokens)
 }
 
-/// Runs a shipped detector over `tokens` (samples in parallel): its detections per sample.
+/// Runs a shipped detector over `tokens` (samples in parallel) with a progress bar: its
+/// detections per sample.
 pub fn detect_case(
     dataset: &mlod::dataset::Dataset,
     tokens: &[String],
     run: &DetectorRun,
     case: mlod::detect::Case,
-    params: &mlod::pipeline::FuseParams,
 ) -> Result<std::collections::HashMap<String, Vec<mlod::detect::Detection>>> {
-    use rayon::prelude::*;
     let detector = run.load(case)?;
     let bar = indicatif::ProgressBar::new(tokens.len() as u64);
-    // Samples lacking LiDARs the case reads, and the first one's note.
-    let lacking = std::sync::atomic::AtomicUsize::new(0);
-    let first_note: std::sync::Mutex<Option<(String, String)>> = std::sync::Mutex::new(None);
-    let dets = tokens
-        .par_iter()
-        .map(|tok| -> Result<(String, Vec<mlod::detect::Detection>)> {
-            let mut frame = dataset.frame(tok)?;
-            run.apply_intensity(&mut frame);
-            if let Some(note) = case.missing_lidars_note(&frame) {
-                lacking.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                if let Ok(mut first) = first_note.lock() {
-                    if first.as_ref().is_none_or(|(t, _)| tok < t) {
-                        *first = Some((tok.clone(), note));
-                    }
-                }
-            }
-            let d = detector
-                .detect(&frame, params)
-                .with_context(|| format!("{} on sample {tok}", case.paper_name()))?;
-            bar.inc(1);
-            Ok((tok.clone(), d))
-        })
-        .collect::<Result<std::collections::HashMap<_, _>>>()?;
+    let (dets, notes) = run
+        .options()
+        .detect_samples(dataset, tokens, detector.as_ref(), case, &|| bar.inc(1))?;
     bar.finish_and_clear();
-    let lacking = lacking.into_inner();
-    if let Some((_, note)) = first_note.into_inner().ok().flatten() {
+    if let Some(note) = notes.first {
         eprintln!(
-            "note: {lacking} of {} samples lack LiDARs the case reads; {note}",
+            "note: {} of {} samples lack LiDARs the case reads; {note}",
+            notes.lacking,
             tokens.len()
         );
     }
@@ -133,10 +112,9 @@ pub fn run_case(
     tokens: &[String],
     run: &DetectorRun,
     case: mlod::detect::Case,
-    params: &mlod::pipeline::FuseParams,
     opts: &mlod::eval::EvalOptions,
 ) -> Result<mlod::eval::EvalReport> {
-    let dets = detect_case(dataset, tokens, run, case, params)?;
+    let dets = detect_case(dataset, tokens, run, case)?;
     Ok(mlod::eval::evaluate_detections(dataset, &dets, opts)?)
 }
 
@@ -170,8 +148,8 @@ pub fn eval_cmd(args: EvalArgs) -> Result<()> {
         if !args.seeds.is_empty() {
             return trials(&args, &dataset, &tokens, case, &opts);
         }
-        let params = args.run.fuse_params()?;
-        let report = run_case(&dataset, &tokens, &args.run, case, &params, &opts)?;
+        args.run.fuse_params()?; // an absurd α is refused before any sample runs
+        let report = run_case(&dataset, &tokens, &args.run, case, &opts)?;
         return print_eval(&args, &report);
     };
     let known: std::collections::HashSet<&str> = tokens.iter().map(String::as_str).collect();
@@ -405,7 +383,7 @@ fn trials(
             external: args.run.external.clone(),
             ..args.run
         };
-        let report = run_case(dataset, tokens, &run, case, &run.fuse_params()?, opts)?;
+        let report = run_case(dataset, tokens, &run, case, opts)?;
         let ap =
             mlod::eval::kitti::car_moderate_07(&report.kitti).context("no car of moderate difficulty")?;
         eprintln!(

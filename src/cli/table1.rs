@@ -64,7 +64,7 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
     };
     let tokens = evaluated_tokens(&dataset, &args.dataset, &opts)?;
     let models = args.run.models_dir();
-    let params = args.run.fuse_params()?;
+    args.run.fuse_params()?; // an absurd α is refused before any sample runs
     let cases = if args.cases.is_empty() {
         // The MLOD rows join when the models folder has a refiner.
         let refiner = mlod::detect::Manifest::load(&models).is_ok_and(|m| m.refiner.is_some());
@@ -82,7 +82,7 @@ pub fn table1_cmd(args: Table1Args) -> Result<()> {
     let mut attributions = Vec::new();
     for case in cases {
         let start = std::time::Instant::now();
-        let dets = detect_case(&dataset, &tokens, &args.run, case, &params)?;
+        let dets = detect_case(&dataset, &tokens, &args.run, case)?;
         let mut report = mlod::eval::evaluate_detections(&dataset, &dets, &opts)?;
         if args.attribution {
             let att_opts = mlod::eval::EvalOptions {

@@ -10,7 +10,6 @@ use mlod::cases::ground_gate::GateChoice;
 use mlod::detect::model::Voting;
 use mlod::detect::weights::default_models_dir;
 use mlod::detect::Case;
-use mlod::pipeline::FuseParams;
 use mlod::train::stage1::{calibrate_temperatures, train_stage1, TrainConfig};
 
 use super::args::command_line;
@@ -397,7 +396,7 @@ fn validation_ap(
     let run = DetectorRun::of_models(models.to_path_buf(), vote_iou, ground_gate);
     let mut per_case = std::collections::BTreeMap::new();
     for &case in cases {
-        let dets = super::eval::detect_case(dataset, tokens, &run, case, &FuseParams::default())?;
+        let dets = super::eval::detect_case(dataset, tokens, &run, case)?;
         let report = mlod::eval::evaluate_detections(dataset, &dets, opts)?;
         let ap = mlod::eval::kitti::car_moderate_07(&report.kitti)
             .with_context(|| format!("{case}: no car of moderate difficulty in the validation scenes"))?;

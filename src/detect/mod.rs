@@ -75,6 +75,13 @@ pub enum DetectError {
     /// An external detector failed (`crate::external`; the message names it).
     #[error("{0}")]
     External(String),
+    /// A case failed on one sample of a run over many (`crate::cases::run`).
+    #[error("{case} on sample {sample}: {source}")]
+    Sample {
+        case: String,
+        sample: String,
+        source: Box<DetectError>,
+    },
 }
 
 /// One entry point for every stage-1 case.
