@@ -32,9 +32,8 @@ pub struct SynthArgs {
     #[arg(long)]
     roof_height_jitter: Option<f64>,
     /// Car sizes: `uniform` (4.2–5.0 m long, one body shape; v2) or `mixed` (compacts, sedans,
-    /// SUVs and pickups; mean near real Lyft's 4.75 × 1.92 × 1.71 m; v4, walled) or `detailed`
-    /// (mixed with wheel arches, clearance per body type and door mirrors; an experiment).
-    #[arg(long, value_parser = ["uniform", "mixed", "detailed"])]
+    /// SUVs and pickups; mean near real Lyft's 4.75 × 1.92 × 1.71 m; v4, walled).
+    #[arg(long, value_parser = ["uniform", "mixed"])]
     car_sizes: Option<String>,
     /// Intensity: `reflectance` (from the material and incidence, 0–255; v2) or `lyft` (100 for
     /// every point, as the real Lyft Level 5 files hold; v4, walled).
@@ -99,10 +98,10 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         cfg.roof.height_jitter_m = j;
     }
     if let Some(c) = &args.car_sizes {
-        cfg.car_sizes = match c.as_str() {
-            "mixed" => mlod::synth::CarSizes::Mixed,
-            "detailed" => mlod::synth::CarSizes::Detailed,
-            _ => mlod::synth::CarSizes::Uniform,
+        cfg.car_sizes = if c == "mixed" {
+            mlod::synth::CarSizes::Mixed
+        } else {
+            mlod::synth::CarSizes::Uniform
         };
     }
     if let Some(i) = &args.intensity {

@@ -161,12 +161,6 @@ pub enum CarSizes {
     /// typical car), sedans 30 %, SUVs 40 %, pickups 15 % (5.3–5.9 m, a short cabin and the bed
     /// at belt height); the mean, about 4.74 × 1.90 × 1.66 m, is near real Lyft's 4.75 × 1.92 × 1.71 m.
     Mixed,
-    /// `Mixed` with more of a real car's geometry (issue 53's vehicle-geometry lever): wheel
-    /// arches (the lower body is cut around each wheel, which shows in the gap), a ground clearance
-    /// per body type (0.14 m compacts and sedans, 0.21 m SUVs, 0.24 m pickups) with the bumpers
-    /// 8 cm higher, and door mirrors at the cabin's front that stick out 9 cm past the body (the
-    /// box spans the mirrors). The same random draws as `Mixed`: the scenes differ only in shape.
-    Detailed,
 }
 
 /// One body type of the `Mixed` car sizes: drawn while u < `up_to` (u uniform in [0, 1)), with
@@ -177,8 +171,6 @@ struct BodyType {
     w: (f64, f64),
     h: (f64, f64),
     cabin: Cabin,
-    /// Ground clearance of the `Detailed` geometry (m).
-    clearance: f64,
 }
 
 /// Compact, sedan, SUV, pickup (the cabin forward of the middle, the bed behind it at belt
@@ -195,7 +187,6 @@ const BODY_TYPES: [BodyType; 4] = [
             x: -0.02,
             width: 0.43,
         },
-        clearance: 0.14,
     },
     BodyType {
         up_to: 0.45,
@@ -208,7 +199,6 @@ const BODY_TYPES: [BodyType; 4] = [
             x: -0.05,
             width: 0.43,
         },
-        clearance: 0.14,
     },
     BodyType {
         up_to: 0.85,
@@ -221,7 +211,6 @@ const BODY_TYPES: [BodyType; 4] = [
             x: -0.08,
             width: 0.44,
         },
-        clearance: 0.21,
     },
     BodyType {
         up_to: 1.0,
@@ -234,13 +223,11 @@ const BODY_TYPES: [BodyType; 4] = [
             x: 0.12,
             width: 0.44,
         },
-        clearance: 0.24,
     },
 ];
 
-/// A car of the `Mixed` size distribution: one of [`BODY_TYPES`], with the `Detailed` geometry
-/// when `detailed`.
-fn mixed_car(rng: &mut impl Rng, detailed: bool) -> ActorShape {
+/// A car of the `Mixed` size distribution: one of [`BODY_TYPES`].
+fn mixed_car(rng: &mut impl Rng) -> ActorShape {
     let u: f64 = rng.random_range(0.0..1.0);
     let body = BODY_TYPES
         .iter()
@@ -250,16 +237,13 @@ fn mixed_car(rng: &mut impl Rng, detailed: bool) -> ActorShape {
     let w = rng.random_range(body.w.0..body.w.1);
     let h = rng.random_range(body.h.0..body.h.1);
     let rho = paint(rng);
-    if detailed {
-        return detailed_vehicle(mm(l), mm(w), mm(h), body.cabin, body.clearance, rho);
-    }
     cabin_vehicle(mm(l), mm(w), mm(h), body.cabin, rho)
 }
 
 /// Builds a random shape of a category, cars drawn as `car_sizes` says.
 pub fn build_with(category: Category, car_sizes: CarSizes, rng: &mut impl Rng) -> ActorShape {
-    if category == Category::Car && car_sizes != CarSizes::Uniform {
-        return mixed_car(rng, car_sizes == CarSizes::Detailed);
+    if category == Category::Car && car_sizes == CarSizes::Mixed {
+        return mixed_car(rng);
     }
     build(category, rng)
 }
@@ -397,85 +381,6 @@ fn cabin_vehicle(l: f64, w: f64, h: f64, cabin: Cabin, rho: f32) -> ActorShape {
     let rw = (0.3 + 0.12 * (h - 1.4)).clamp(0.3, 0.4);
     let mut parts = vec![body, cab];
     for (x, y) in wheel_positions(l, w, 0.95, 1.0, 0.13) {
-        parts.push(part(
-            [x, y, z0 + rw],
-            Shape::Cylinder {
-                axis: Axis::Y,
-                radius: rw,
-                half_len: 0.11,
-            },
-            materials::RUBBER,
-        ));
-    }
-    ActorShape {
-        size_lwh: [l, w, h],
-        parts,
-    }
-}
-
-/// The `Detailed` car: [`cabin_vehicle`]'s body and cabin 9 cm narrower each side, the lower body
-/// cut into an upper slab over the wheel arches and three pieces between and beyond them (each
-/// rounded by the whole body's ellipsoid), mirrors that reach the box's sides.
-fn detailed_vehicle(l: f64, w: f64, h: f64, cabin: Cabin, clearance: f64, rho: f32) -> ActorShape {
-    const MIRROR: f64 = 0.09;
-    let z0 = -0.5 * h;
-    let wb = w - 2.0 * MIRROR;
-    let belt = cabin.belt * h;
-    let rw = (0.3 + 0.12 * (h - 1.4)).clamp(0.3, 0.4);
-    let arch_top = (2.0 * rw + 0.05).min(belt - 0.03);
-    let body_centre = [0.0, 0.0, z0 + 0.5 * (clearance + belt)];
-    let radii = [0.56 * l, 0.89 * wb, 4.0];
-    let paint = Material::uniform(rho);
-    // One piece of the lower body: x and z spans (m, z from the box bottom).
-    let slab = |x: (f64, f64), z: (f64, f64)| {
-        let c = [0.5 * (x.0 + x.1), 0.0, z0 + 0.5 * (z.0 + z.1)];
-        part(
-            c,
-            Shape::RoundedCuboid {
-                half: [0.5 * (x.1 - x.0), 0.5 * wb, 0.5 * (z.1 - z.0)],
-                radii,
-                offset: std::array::from_fn(|k| body_centre[k] - c[k]),
-            },
-            paint,
-        )
-    };
-    let [(xf, yw), _, (xr, _)] = {
-        let p = wheel_positions(l, wb, 0.95, 1.0, 0.03 + 0.11);
-        [p[0], p[1], p[2]]
-    };
-    let arch = rw + 0.06;
-    let bumper = clearance + 0.08;
-    let mut parts = vec![
-        slab((-0.5 * l, 0.5 * l), (arch_top, belt)),
-        slab((xr + arch, xf - arch), (clearance, arch_top)),
-        slab((xf + arch, 0.5 * l), (bumper, arch_top)),
-        slab((-0.5 * l, xr - arch), (bumper, arch_top)),
-    ];
-    let hc = h - belt;
-    parts.push(part(
-        [cabin.x * l, 0.0, z0 + belt + 0.5 * hc],
-        Shape::RoundedCuboid {
-            half: [0.5 * cabin.length * l, cabin.width * wb, 0.5 * hc],
-            radii: [0.66 * cabin.length * l, 1.2 * cabin.width * wb, 1.5 * hc],
-            offset: [0.0, 0.0, -hc],
-        },
-        Material::two_tone(rho, materials::GLASS),
-    ));
-    let mirror_x = (cabin.x + 0.5 * cabin.length) * l - 0.15;
-    for side in [1.0, -1.0] {
-        parts.push(part(
-            [
-                mirror_x,
-                side * (0.5 * w - 0.5 * (MIRROR + 0.03)),
-                z0 + belt + 0.08,
-            ],
-            Shape::Cuboid {
-                half: [0.08, 0.5 * (MIRROR + 0.03), 0.06],
-            },
-            paint,
-        ));
-    }
-    for (x, y) in [(xf, yw), (xf, -yw), (xr, yw), (xr, -yw)] {
         parts.push(part(
             [x, y, z0 + rw],
             Shape::Cylinder {
@@ -787,4 +692,49 @@ fn animal(l: f64, w: f64, h: f64, fur: Material) -> ActorShape {
 }
 
 #[cfg(test)]
-mod tests;
+mod tests {
+    use super::*;
+    use crate::synth::noise::layout_rng;
+
+    #[test]
+    fn every_shape_fills_its_annotation_box_exactly() {
+        let mut rng = layout_rng(&[1, 2, 3]);
+        for cat in Category::ALL {
+            for _ in 0..50 {
+                let s = build(cat, &mut rng);
+                let (lo, hi) = s.bounds();
+                for k in 0..3 {
+                    let half = 0.5 * s.size_lwh[k];
+                    assert!(
+                        (lo[k] + half).abs() < 1e-9,
+                        "{cat:?} axis {k}: {} vs {}",
+                        lo[k],
+                        -half
+                    );
+                    assert!(
+                        (hi[k] - half).abs() < 1e-9,
+                        "{cat:?} axis {k}: {} vs {}",
+                        hi[k],
+                        half
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn car_sizes_are_lyft_like_and_not_cuboids() {
+        let mut rng = layout_rng(&[4]);
+        for _ in 0..100 {
+            let s = build(Category::Car, &mut rng);
+            let [l, w, h] = s.size_lwh;
+            assert!((4.2..=5.0).contains(&l) && (1.8..=2.1).contains(&w) && (1.4..=1.9).contains(&h));
+            // The top front corner of the box is empty (hood below the roof line).
+            assert!(!s.contains(&[0.45 * l, 0.0, 0.45 * h], 0.0));
+            // The plan-view corners are rounded off.
+            assert!(!s.contains(&[0.49 * l, 0.49 * w, -0.1 * h], 0.0));
+            // The centre of the cabin and of the lower body are solid.
+            assert!(s.contains(&[0.0, 0.0, 0.3 * h], 0.0) && s.contains(&[0.3 * l, 0.0, -0.2 * h], 0.0));
+        }
+    }
+}
