@@ -92,7 +92,7 @@ class Dataset:
 
     def fuse(self, sample: str, alpha: float = 0.0, seed: int = 0) -> Dict[str, Any]:
         """The fused cloud of ``mlod export`` for this sample, α and seed: ``points`` (N x 3
-        float32, base frame), ``trace`` (N, tr(Xi) in m²), ``lidar`` (N, uint8 index into
+        float32, base frame; Fortran order, the transpose of one x|y|z buffer), ``trace`` (N, tr(Xi) in m²), ``lidar`` (N, uint8 index into
         ``channels``), ``intensity`` (N), ``channels`` and ``extrinsics`` (the 4 x 4 extrinsic
         each LiDAR was fused with, the drift included)."""
         return self._native.fuse_dict(str(sample), _alpha(alpha), _seed(seed))

@@ -13,6 +13,7 @@ use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2};
 use pyo3::create_exception;
 use pyo3::prelude::*;
 use pyo3::types::PyList;
+use rayon::prelude::*;
 
 use mlod::calib::report::CalibrationRun;
 use mlod::calib::{IcpConfig, OcPrior};
@@ -21,8 +22,7 @@ use mlod::dataset::{Frame, LidarChannel};
 use mlod::detect::Case;
 use mlod::geometry::Pose;
 use mlod::pipeline::{self, FuseParams};
-use mlod::uncertainty::propagate::covariance_cloud;
-use mlod::uncertainty::{trace_cloud, Perturbation, TraceKernel};
+use mlod::uncertainty::{Perturbation, TraceKernel};
 
 create_exception!(
     _mlod,
@@ -193,25 +193,22 @@ fn propagate<'py>(
             .scaled(alpha)
             .map_err(|e| format!("alpha {alpha}: {}", msg(e)))?;
         let kernel = TraceKernel::new(&r, &t, &prior, params.linearization);
-        let (mut x, mut y, mut z) = (
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-        );
-        for q in p.chunks_exact(3) {
-            x.push(q[0]);
-            y.push(q[1]);
-            z.push(q[2]);
-        }
+        // One parallel pass over the interleaved points: tr(Ξ) and Ξ's nine entries (row-major,
+        // from its six unique ones xx, yy, zz, xy, xz, yz), the kernel the pipeline runs.
         let mut trace = vec![0.0f32; n];
-        trace_cloud(&kernel, &x, &y, &z, &mut trace);
-        let mut six = vec![[0.0f32; 6]; n];
-        covariance_cloud(&kernel, &x, &y, &z, &mut six);
-        // xx, yy, zz, xy, xz, yz → row-major 3×3.
-        let xi: Vec<f32> = six
-            .iter()
-            .flat_map(|c| [c[0], c[3], c[4], c[3], c[1], c[5], c[4], c[5], c[2]])
-            .collect();
+        let mut xi = vec![0.0f32; 9 * n];
+        const CHUNK: usize = 4096;
+        trace
+            .par_chunks_mut(CHUNK)
+            .zip(xi.par_chunks_mut(9 * CHUNK))
+            .zip(p.par_chunks(3 * CHUNK))
+            .for_each(|((tr, xi), pts)| {
+                for ((t, m), q) in tr.iter_mut().zip(xi.chunks_exact_mut(9)).zip(pts.chunks_exact(3)) {
+                    *t = kernel.trace(q[0], q[1], q[2]);
+                    let c = kernel.covariance6(q[0], q[1], q[2]);
+                    m.copy_from_slice(&[c[0], c[3], c[4], c[3], c[1], c[5], c[4], c[5], c[2]]);
+                }
+            });
         Ok((xi, trace))
     })?;
     Ok((
@@ -368,11 +365,13 @@ impl Dataset {
             let params = fuse_params(alpha, seed)?;
             pipeline::fuse(&frame, &params).map_err(|e| format!("fusing sample {sample}: {}", msg(e)))
         })?;
+        // x, y and z end to end in x's buffer (grown once): a 3×N array whose transpose is the
+        // N×3 `points` (Fortran order), without interleaving every point.
         let n = cloud.x.len();
-        let mut xyz = Vec::with_capacity(3 * n);
-        for i in 0..n {
-            xyz.extend_from_slice(&[cloud.x[i], cloud.y[i], cloud.z[i]]);
-        }
+        let mut xyz = cloud.x;
+        xyz.reserve_exact(2 * n);
+        xyz.extend_from_slice(&cloud.y);
+        xyz.extend_from_slice(&cloud.z);
         let d = pyo3::types::PyDict::new(py);
         let channels: Vec<&str> = cloud.lidars.iter().map(|l| l.channel.as_str()).collect();
         let extrinsics = pyo3::types::PyDict::new(py);
@@ -382,7 +381,10 @@ impl Dataset {
                 PyArray1::from_vec(py, pose_matrix(&l.applied)).reshape([4, 4])?,
             )?;
         }
-        d.set_item("points", PyArray1::from_vec(py, xyz).reshape([n, 3])?)?;
+        d.set_item(
+            "points",
+            PyArray1::from_vec(py, xyz).reshape([3, n])?.transpose()?,
+        )?;
         d.set_item("trace", PyArray1::from_vec(py, cloud.trace))?;
         d.set_item("lidar", PyArray1::from_vec(py, cloud.source))?;
         d.set_item("intensity", PyArray1::from_vec(py, cloud.intensity))?;
