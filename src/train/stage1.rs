@@ -373,6 +373,8 @@ pub struct TrainConfig {
     /// [`crate::train::transfer_aug`]: object and global scaling, random point density.
     #[serde(default)]
     pub transfer_aug: bool,
+    /// With `transfer_aug`: the car ray-drop lever ([`TransferAug::draw_car_keep`]).
+    pub car_drop: bool,
     /// The model's input leaves intensity out ([`crate::detect::voxel::GridConfig::intensity`]).
     #[serde(default)]
     pub no_intensity: bool,
@@ -406,6 +408,7 @@ impl TrainConfig {
             command: String::new(),
             slow_autograd: false,
             transfer_aug: false,
+            car_drop: false,
             no_intensity: false,
             all_samples: false,
         }
@@ -651,9 +654,16 @@ pub fn train_stage1(
         let frame = dataset.frame(token)?;
         let picked = sample_objects(&database, &frame, &model.config.anchor.category, cfg, step);
         let objects: Vec<&GtObject> = picked.iter().filter_map(|&i| database.objects.get(i)).collect();
-        let transfer = cfg
-            .transfer_aug
-            .then(|| TransferAug::draw(&mut stream_rng(cfg.seed, (1u64 << 34) + step), MAX_SCALED_BOXES));
+        let transfer = cfg.transfer_aug.then(|| {
+            let mut t = TransferAug::draw(&mut stream_rng(cfg.seed, (1u64 << 34) + step), MAX_SCALED_BOXES);
+            if cfg.car_drop {
+                t.car_keep = TransferAug::draw_car_keep(
+                    &mut stream_rng(cfg.seed, (1u64 << 35) + step),
+                    MAX_SCALED_BOXES,
+                );
+            }
+            t
+        });
         let params = FuseParams::default();
         let sample = prepare_sample_with(&model, &frame, aug.as_ref(), &objects, transfer.as_ref(), &params)?;
         Ok((sample, t0.elapsed().as_secs_f64() * 1e3))

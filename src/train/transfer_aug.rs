@@ -36,6 +36,9 @@ pub struct TransferAug {
     pub point_seed: u64,
     /// Pitch (about y) and roll (about x), rad.
     pub tilt: [f32; 2],
+    /// Per box (as `object_scales`): the share of its points kept (1: all); empty: none dropped.
+    /// The car ray-drop lever (`--car-drop`, docs/notes/2026-12-07-lever-object-ray-drop-rule.md).
+    pub car_keep: Vec<f32>,
 }
 
 impl TransferAug {
@@ -75,7 +78,22 @@ impl TransferAug {
             keep,
             point_seed,
             tilt,
+            car_keep: Vec::new(),
         }
+    }
+
+    /// The car ray-drop lever's draw, from its own stream (the other draws stay as they were):
+    /// each box, with probability 0.5, keeps its points with one probability from U(0.2, 0.6).
+    pub fn draw_car_keep(rng: &mut ChaCha8Rng, boxes: usize) -> Vec<f32> {
+        (0..boxes)
+            .map(|_| {
+                if rng.random_bool(0.5) {
+                    rng.random_range(0.2f32..=0.6)
+                } else {
+                    1.0
+                }
+            })
+            .collect()
     }
 
     /// Applies it to a cloud and its boxes (`boxes` as at the draw; extra boxes are not scaled).
@@ -145,6 +163,22 @@ impl TransferAug {
                 }
             }
         }
+        if self.car_keep.iter().any(|&k| k < 1.0) {
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(self.point_seed ^ 0x00ca_7d70);
+            for (b, &k) in boxes.iter().zip(&self.car_keep) {
+                if k >= 1.0 {
+                    continue;
+                }
+                let inside = Inside::new(b);
+                for i in 0..n {
+                    if inside.contains(cloud.x[i], cloud.y[i], cloud.z[i]) && rng.random::<f32>() >= k {
+                        cloud.x[i] = f32::NAN;
+                        cloud.y[i] = f32::NAN;
+                        cloud.z[i] = f32::NAN;
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -178,6 +212,7 @@ mod tests {
             keep: 1.0,
             point_seed: 0,
             tilt: [0.0, 0.0],
+            car_keep: Vec::new(),
         };
         aug.apply(&mut c, &mut boxes);
         let b = boxes[0];
@@ -204,6 +239,7 @@ mod tests {
             keep: 0.6,
             point_seed: 9,
             tilt: [0.0, 0.0],
+            car_keep: Vec::new(),
         };
         aug.apply(&mut c, &mut boxes);
         assert!((boxes[0][0] - 10.5).abs() < 1e-5 && (boxes[0][3] - 4.2).abs() < 1e-5);
@@ -230,6 +266,7 @@ mod tests {
             keep: 1.0,
             point_seed: 0,
             tilt: [-1f32.to_radians(), 0.0],
+            car_keep: Vec::new(),
         };
         tilt.apply(&mut c, &mut boxes);
         let lift = 30.0 * 1f32.to_radians().sin();
@@ -244,5 +281,36 @@ mod tests {
         let a = TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4);
         assert_eq!(a, TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4));
         assert_eq!(a.object_scales.len(), 4);
+    }
+
+    #[test]
+    fn car_drop_thins_only_the_points_of_its_box() {
+        let pts: Vec<[f32; 3]> = (0..4000)
+            .map(|i| [8.5 + (i % 40) as f32 * 0.08, -0.98 + (i / 40) as f32 * 0.0195, -1.0])
+            .collect();
+        let mut c = cloud(&pts);
+        c.x.push(30.0);
+        c.y.push(0.0);
+        c.z.push(-1.0);
+        let mut boxes = [[10.0f32, 0.0, -1.0, 4.0, 2.0, 1.6, 0.0]];
+        let aug = TransferAug {
+            object_scales: vec![1.0],
+            global_scale: 1.0,
+            keep: 1.0,
+            point_seed: 3,
+            tilt: [0.0, 0.0],
+            car_keep: vec![0.4],
+        };
+        aug.apply(&mut c, &mut boxes);
+        let kept = c.x[..4000].iter().filter(|v| !v.is_nan()).count();
+        assert!(
+            (1400..=1800).contains(&kept),
+            "{kept} of 4000 kept, expected about 1600"
+        );
+        assert_eq!(c.x[4000], 30.0, "a point outside the box stays");
+        let keeps = TransferAug::draw_car_keep(&mut ChaCha8Rng::seed_from_u64(1), 1000);
+        let dropped = keeps.iter().filter(|&&k| k < 1.0).count();
+        assert!((400..=600).contains(&dropped));
+        assert!(keeps.iter().all(|&k| k == 1.0 || (0.2..=0.6).contains(&k)));
     }
 }
