@@ -286,7 +286,13 @@ mod tests {
     #[test]
     fn car_drop_thins_only_the_points_of_its_box() {
         let pts: Vec<[f32; 3]> = (0..4000)
-            .map(|i| [8.5 + (i % 40) as f32 * 0.08, -0.98 + (i / 40) as f32 * 0.0195, -1.0])
+            .map(|i| {
+                [
+                    8.5 + (i % 40) as f32 * 0.08,
+                    -0.98 + (i / 40) as f32 * 0.0195,
+                    -1.0,
+                ]
+            })
             .collect();
         let mut c = cloud(&pts);
         c.x.push(30.0);
