@@ -157,9 +157,7 @@ impl TransferAug {
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(self.point_seed);
             for i in 0..n {
                 if rng.random::<f32>() >= self.keep {
-                    cloud.x[i] = f32::NAN;
-                    cloud.y[i] = f32::NAN;
-                    cloud.z[i] = f32::NAN;
+                    drop_point(cloud, i);
                 }
             }
         }
@@ -172,14 +170,19 @@ impl TransferAug {
                 let inside = Inside::new(b);
                 for i in 0..n {
                     if inside.contains(cloud.x[i], cloud.y[i], cloud.z[i]) && rng.random::<f32>() >= k {
-                        cloud.x[i] = f32::NAN;
-                        cloud.y[i] = f32::NAN;
-                        cloud.z[i] = f32::NAN;
+                        drop_point(cloud, i);
                     }
                 }
             }
         }
     }
+}
+
+/// Drops point `i`: NaN, which the voxeliser and the point-in-box counts skip.
+fn drop_point(cloud: &mut FusedCloud, i: usize) {
+    cloud.x[i] = f32::NAN;
+    cloud.y[i] = f32::NAN;
+    cloud.z[i] = f32::NAN;
 }
 
 #[cfg(test)]
