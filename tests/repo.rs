@@ -324,6 +324,41 @@ fn the_module_graph_has_no_cycle() {
     }
 }
 
+/// The window's modules (`gui`, `render`: the ones `src/lib.rs` builds only with the `gui`
+/// feature) are leaves: no other library module imports them. So the library without the feature
+/// (the Python wheel's) is the same code as with it, less those two, and CI may test the Python
+/// package against the library built with its default features.
+#[test]
+fn no_library_module_imports_the_window() {
+    let src = root().join("src");
+    let lib = fs::read_to_string(src.join("lib.rs")).expect("read src/lib.rs");
+    let gated: Vec<String> = lib
+        .split("#[cfg(feature = \"gui\")]")
+        .skip(1)
+        .filter_map(|rest| {
+            let line = rest.trim_start().lines().next()?;
+            line.strip_prefix("pub mod ")
+                .map(|m| m.trim_end_matches(';').to_string())
+        })
+        .collect();
+    assert_eq!(gated, ["gui", "render"], "src/lib.rs's gui-gated modules");
+    let graph = module_graph(&src, &["cli"]);
+    let offenders: Vec<String> = graph
+        .iter()
+        .filter(|(m, _)| m.first().is_none_or(|h| !gated.contains(h)))
+        .flat_map(|(m, deps)| {
+            deps.iter()
+                .filter(|d| d.first().is_some_and(|h| gated.contains(h)))
+                .map(move |d| format!("{} -> {}", m.join("::"), d.join("::")))
+        })
+        .collect();
+    assert!(
+        offenders.is_empty(),
+        "library modules import the window's: {}",
+        offenders.join(", ")
+    );
+}
+
 #[test]
 fn the_cycle_finder_finds_a_cycle() {
     // a -> b -> c -> a through `use` groups and a `super::` path; d only depends on them.
