@@ -158,6 +158,11 @@ fn phases(a: &ChainArgs, data: &Path) -> Vec<Phase> {
             "--checkpoint",
             &s(&ckpt),
         ]));
+        // The car ray drop, adopted for LiDAR-Top, the one case it was measured on
+        // (docs/notes/2026-12-07-lever-object-ray-drop-rule.md).
+        if case == "top" {
+            w.push("--car-drop".to_string());
+        }
         if let Some(init) = &a.init {
             w.extend(words(&["--init", &s(&init.join(format!("{case}.safetensors")))]));
         }

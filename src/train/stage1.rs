@@ -373,8 +373,12 @@ pub struct TrainConfig {
     /// [`crate::train::transfer_aug`]: object and global scaling, random point density.
     #[serde(default)]
     pub transfer_aug: bool,
-    /// With `transfer_aug`: the car ray-drop lever ([`TransferAug::draw_car_keep`]).
+    /// With `transfer_aug`: the car ray drop ([`TransferAug::draw_car_keep`]).
+    #[serde(default)]
     pub car_drop: bool,
+    /// With `transfer_aug`: the wider object scaling lever ([`TransferAug::widen_object_scales`]).
+    #[serde(default)]
+    pub wide_object_scale: bool,
     /// The model's input leaves intensity out ([`crate::detect::voxel::GridConfig::intensity`]).
     #[serde(default)]
     pub no_intensity: bool,
@@ -409,6 +413,7 @@ impl TrainConfig {
             slow_autograd: false,
             transfer_aug: false,
             car_drop: false,
+            wide_object_scale: false,
             no_intensity: false,
             all_samples: false,
         }
@@ -661,6 +666,9 @@ pub fn train_stage1(
                     &mut stream_rng(cfg.seed, (1u64 << 35) + step),
                     MAX_SCALED_BOXES,
                 );
+            }
+            if cfg.wide_object_scale {
+                t.widen_object_scales();
             }
             t
         });

@@ -133,6 +133,8 @@ fn a_killed_chain_resumes_to_a_complete_models_folder() {
             cmd.starts_with(&format!("mlod train stage1 --case {case} ")),
             "{cmd}"
         );
+        // The car ray drop is LiDAR-Top's recipe alone (the case it was measured on).
+        assert_eq!(cmd.contains(" --car-drop"), case == "top", "{cmd}");
     }
     assert_eq!(m["models"].as_object().map(|o| o.len()), Some(5));
     for k in [
