@@ -137,10 +137,6 @@ pub struct Stage1Args {
     /// recipe: docs/notes/2026-12-07-lever-object-ray-drop-rule.md).
     #[arg(long, requires = "transfer_aug")]
     car_drop: bool,
-    /// With --transfer-aug: object scaling draws U(0.75, 1.1) instead of U(0.9, 1.1) (an
-    /// experiment: docs/notes/2026-12-08-lever-object-scaling-rule.md).
-    #[arg(long, requires = "transfer_aug")]
-    wide_object_scale: bool,
     /// Leave intensity out of the input (its BEV channel stays zero): for data whose intensity
     /// is not real (real Lyft files hold 100 everywhere) or differs between sensors.
     #[arg(long)]
@@ -194,7 +190,6 @@ pub fn train(cmd: TrainCommand) -> Result<()> {
             cfg.slow_autograd = a.slow_autograd;
             cfg.transfer_aug = a.transfer_aug;
             cfg.car_drop = a.car_drop;
-            cfg.wide_object_scale = a.wide_object_scale;
             cfg.no_intensity = a.no_intensity;
             // candle runs its element-wise ops on a spinning thread pool of its own beside rayon's
             // (which gemm uses); on 2 busy cores the two pools fight and the spinning took ~40% of

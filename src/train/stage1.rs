@@ -376,9 +376,6 @@ pub struct TrainConfig {
     /// With `transfer_aug`: the car ray drop ([`TransferAug::draw_car_keep`]).
     #[serde(default)]
     pub car_drop: bool,
-    /// With `transfer_aug`: the wider object scaling lever ([`TransferAug::widen_object_scales`]).
-    #[serde(default)]
-    pub wide_object_scale: bool,
     /// The model's input leaves intensity out ([`crate::detect::voxel::GridConfig::intensity`]).
     #[serde(default)]
     pub no_intensity: bool,
@@ -413,7 +410,6 @@ impl TrainConfig {
             slow_autograd: false,
             transfer_aug: false,
             car_drop: false,
-            wide_object_scale: false,
             no_intensity: false,
             all_samples: false,
         }
@@ -666,9 +662,6 @@ pub fn train_stage1(
                     &mut stream_rng(cfg.seed, (1u64 << 35) + step),
                     MAX_SCALED_BOXES,
                 );
-            }
-            if cfg.wide_object_scale {
-                t.widen_object_scales();
             }
             t
         });

@@ -13,7 +13,10 @@
 //!   and the point-in-box counts skip, so the fused cloud's per-LiDAR ranges stay valid;
 //! - **tilt**: with probability 0.5, the cloud is pitched by U(−1.5°, 1.5°) and rolled by
 //!   U(−1°, 1°) about the sensor (a road that climbs or falls away, a car that pitches: a car
-//!   35 m ahead sits up to 0.9 m higher or lower); box centres follow, boxes stay upright.
+//!   35 m ahead sits up to 0.9 m higher or lower); box centres follow, boxes stay upright;
+//! - **car ray drop** (`--car-drop`, LiDAR-Top's recipe): each box, with probability 0.5, keeps
+//!   its points with one probability U(0.2, 0.6), from a stream of its own
+//!   ([`TransferAug::draw_car_keep`]): real cars carry 0.13–0.53× the points of simulated ones.
 //!
 //! Everything is drawn from the step's own ChaCha8 stream, so a resumed run repeats it exactly.
 
@@ -94,18 +97,6 @@ impl TransferAug {
                 }
             })
             .collect()
-    }
-
-    /// The wider object scaling lever (`--wide-object-scale`,
-    /// docs/notes/2026-12-08-lever-object-scaling-rule.md): every drawn object scale, U(0.9, 1.1),
-    /// mapped linearly onto U(0.75, 1.1) (boxes left unscaled, 1, stay so), so that the step's
-    /// other draws are unchanged.
-    pub fn widen_object_scales(&mut self) {
-        for s in &mut self.object_scales {
-            if *s != 1.0 {
-                *s = 0.75 + (*s - 0.9) * (0.35 / 0.2);
-            }
-        }
     }
 
     /// Applies it to a cloud and its boxes (`boxes` as at the draw; extra boxes are not scaled).
@@ -296,37 +287,6 @@ mod tests {
         let a = TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4);
         assert_eq!(a, TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 4));
         assert_eq!(a.object_scales.len(), 4);
-    }
-
-    #[test]
-    fn wider_object_scaling_maps_the_drawn_range_and_leaves_unscaled_boxes() {
-        let mut t = TransferAug {
-            object_scales: vec![0.9, 1.1, 1.0, 0.95],
-            global_scale: 1.0,
-            keep: 1.0,
-            point_seed: 0,
-            tilt: [0.0, 0.0],
-            car_keep: Vec::new(),
-        };
-        t.widen_object_scales();
-        let want = [0.75, 1.1, 1.0, 0.8375];
-        for (got, want) in t.object_scales.iter().zip(want) {
-            assert!((got - want).abs() < 1e-6, "{got} against {want}");
-        }
-        let drawn = TransferAug::draw(&mut ChaCha8Rng::seed_from_u64(3), 2000);
-        let mut wide = drawn.clone();
-        wide.widen_object_scales();
-        let scaled: Vec<f32> = wide.object_scales.iter().copied().filter(|&s| s != 1.0).collect();
-        assert!(scaled.iter().all(|s| (0.75..=1.1).contains(s)));
-        assert!(
-            scaled.iter().any(|&s| s < 0.8),
-            "nothing below 0.8 in {} draws",
-            scaled.len()
-        );
-        assert_eq!(
-            (wide.global_scale, wide.keep, wide.tilt),
-            (drawn.global_scale, drawn.keep, drawn.tilt)
-        );
     }
 
     #[test]
