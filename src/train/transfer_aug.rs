@@ -47,25 +47,9 @@ pub struct TransferAug {
 impl TransferAug {
     /// Draws the augmentation of a step with `boxes` learned boxes.
     pub fn draw(rng: &mut ChaCha8Rng, boxes: usize) -> Self {
-        let object_scales = (0..boxes)
-            .map(|_| {
-                if rng.random_bool(0.5) {
-                    rng.random_range(0.9f32..=1.1)
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        let global_scale = if rng.random_bool(0.5) {
-            rng.random_range(0.95f32..=1.05)
-        } else {
-            1.0
-        };
-        let keep = if rng.random_bool(0.5) {
-            rng.random_range(0.5f32..=1.0)
-        } else {
-            1.0
-        };
+        let object_scales = (0..boxes).map(|_| half_the_time(rng, 0.9..=1.1)).collect();
+        let global_scale = half_the_time(rng, 0.95..=1.05);
+        let keep = half_the_time(rng, 0.5..=1.0);
         let point_seed = rng.random();
         let tilt = if rng.random_bool(0.5) {
             [
@@ -88,15 +72,7 @@ impl TransferAug {
     /// The car ray-drop lever's draw, from its own stream (the other draws stay as they were):
     /// each box, with probability 0.5, keeps its points with one probability from U(0.2, 0.6).
     pub fn draw_car_keep(rng: &mut ChaCha8Rng, boxes: usize) -> Vec<f32> {
-        (0..boxes)
-            .map(|_| {
-                if rng.random_bool(0.5) {
-                    rng.random_range(0.2f32..=0.6)
-                } else {
-                    1.0
-                }
-            })
-            .collect()
+        (0..boxes).map(|_| half_the_time(rng, 0.2..=0.6)).collect()
     }
 
     /// Applies it to a cloud and its boxes (`boxes` as at the draw; extra boxes are not scaled).
@@ -181,6 +157,16 @@ impl TransferAug {
     }
 }
 
+/// With probability 0.5 a factor drawn from `range`, else 1 (no change): every factor of
+/// [`TransferAug`] is drawn this way, one `random_bool` and at most one `random_range` each.
+fn half_the_time(rng: &mut ChaCha8Rng, range: std::ops::RangeInclusive<f32>) -> f32 {
+    if rng.random_bool(0.5) {
+        rng.random_range(range)
+    } else {
+        1.0
+    }
+}
+
 /// Drops point `i`: NaN, which the voxeliser and the point-in-box counts skip.
 fn drop_point(cloud: &mut FusedCloud, i: usize) {
     cloud.x[i] = f32::NAN;
@@ -207,6 +193,18 @@ mod tests {
         c
     }
 
+    /// An augmentation that changes nothing (one box), for the tests to set one field of.
+    fn neutral() -> TransferAug {
+        TransferAug {
+            object_scales: vec![1.0],
+            global_scale: 1.0,
+            keep: 1.0,
+            point_seed: 0,
+            tilt: [0.0, 0.0],
+            car_keep: Vec::new(),
+        }
+    }
+
     #[test]
     fn object_scaling_keeps_the_bottom_and_moves_only_its_points() {
         // A 4 × 2 × 1.6 box standing on z = −1.8 at (10, 0); a point inside, one outside.
@@ -214,11 +212,7 @@ mod tests {
         let mut c = cloud(&[[11.0, 0.5, -0.2], [20.0, 0.0, -1.0]]);
         let aug = TransferAug {
             object_scales: vec![1.1],
-            global_scale: 1.0,
-            keep: 1.0,
-            point_seed: 0,
-            tilt: [0.0, 0.0],
-            car_keep: Vec::new(),
+            ..neutral()
         };
         aug.apply(&mut c, &mut boxes);
         let b = boxes[0];
@@ -240,12 +234,10 @@ mod tests {
         let mut c = cloud(&pts);
         let mut boxes = [[10.0f32, 2.0, -1.0, 4.0, 2.0, 1.6, 0.3]];
         let aug = TransferAug {
-            object_scales: vec![1.0],
             global_scale: 1.05,
             keep: 0.6,
             point_seed: 9,
-            tilt: [0.0, 0.0],
-            car_keep: Vec::new(),
+            ..neutral()
         };
         aug.apply(&mut c, &mut boxes);
         assert!((boxes[0][0] - 10.5).abs() < 1e-5 && (boxes[0][3] - 4.2).abs() < 1e-5);
@@ -267,12 +259,8 @@ mod tests {
         let mut c = cloud(&[[30.0, 0.0, -1.8]]);
         let mut boxes = [[30.0f32, 0.0, -1.0, 4.0, 2.0, 1.6, 0.0]];
         let tilt = TransferAug {
-            object_scales: vec![1.0],
-            global_scale: 1.0,
-            keep: 1.0,
-            point_seed: 0,
             tilt: [-1f32.to_radians(), 0.0],
-            car_keep: Vec::new(),
+            ..neutral()
         };
         tilt.apply(&mut c, &mut boxes);
         let lift = 30.0 * 1f32.to_radians().sin();
@@ -306,12 +294,9 @@ mod tests {
         c.z.push(-1.0);
         let mut boxes = [[10.0f32, 0.0, -1.0, 4.0, 2.0, 1.6, 0.0]];
         let aug = TransferAug {
-            object_scales: vec![1.0],
-            global_scale: 1.0,
-            keep: 1.0,
             point_seed: 3,
-            tilt: [0.0, 0.0],
             car_keep: vec![0.4],
+            ..neutral()
         };
         aug.apply(&mut c, &mut boxes);
         let kept = c.x[..4000].iter().filter(|v| !v.is_nan()).count();
